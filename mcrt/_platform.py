@@ -1,0 +1,94 @@
+"""Start-up checks: a usable libLLVM and an active vectorised Mitsuba variant.
+
+Dr.Jit's LLVM backend loads the system ``libLLVM`` at run time. Versions 14-16
+(the defaults on Debian 12 and Ubuntu 22.04) load fine and then abort the whole
+process on the first kernel with ``LLVM ERROR: Cannot select ... fminimum``.
+We ask Dr.Jit which version it loaded *before* any kernel is compiled and turn
+a missing or too-old library into a clear, actionable message.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from .errors import SetupError
+
+#: Oldest libLLVM major version known to compile Mitsuba 3.9 kernels.
+MIN_LLVM_MAJOR = 17
+
+#: Variant selected when the user has not activated one.
+DEFAULT_VARIANT = "llvm_ad_rgb"
+
+_INSTALL_HINT = (
+    "install a libLLVM >= {min} (Debian 12 / Ubuntu 24.04: `apt install libllvm19`; "
+    "`bash scripts/setup.sh` does it for you) or point DRJIT_LIBLLVM_PATH at a "
+    "libLLVM.so of version >= {min}"
+)
+
+
+def llvm_status() -> tuple[bool, str]:
+    """Return ``(usable, description)`` for the libLLVM Dr.Jit has loaded.
+
+    Never compiles a kernel, so it is safe to call with a broken libLLVM.
+    """
+    import drjit as dr
+
+    hint = _INSTALL_HINT.format(min=MIN_LLVM_MAJOR)
+    override = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if not dr.has_backend(dr.JitBackend.LLVM):
+        where = f"DRJIT_LIBLLVM_PATH={override!r} could not be loaded" if override \
+            else "no libLLVM shared library was found"
+        return False, f"Dr.Jit's LLVM backend is unavailable: {where}; {hint}"
+    major, minor, patch = dr.detail.llvm_version()
+    version = f"{major}.{minor}.{patch}"
+    if major < MIN_LLVM_MAJOR:
+        source = f" (from DRJIT_LIBLLVM_PATH={override!r})" if override else ""
+        return False, (f"Dr.Jit loaded libLLVM {version}{source}, which crashes on "
+                       f"Mitsuba's kernels; {hint}")
+    return True, f"libLLVM {version}"
+
+
+def ensure_variant() -> str:
+    """Activate :data:`DEFAULT_VARIANT` if no variant is active; check LLVM if used.
+
+    Returns the active variant name. Raises :class:`SetupError` with an install
+    hint when the LLVM backend is needed but unusable.
+    """
+    import mitsuba as mi
+
+    variant = mi.variant()
+    wanted = variant or DEFAULT_VARIANT
+    if wanted.startswith("llvm_"):
+        usable, message = llvm_status()
+        if not usable:
+            raise SetupError(message)
+    if variant is None:
+        mi.set_variant(DEFAULT_VARIANT)
+        variant = DEFAULT_VARIANT
+    return variant
+
+
+def _one_line_setup_errors(previous_hook):
+    def hook(exc_type, exc, tb):
+        if issubclass(exc_type, SetupError):
+            sys.stderr.write(f"mcrt: error: {exc}\n")
+        else:
+            previous_hook(exc_type, exc, tb)
+    return hook
+
+
+def initialise() -> str:
+    """:func:`ensure_variant` for ``import mcrt``.
+
+    An uncaught :class:`SetupError` (say, ``import mcrt`` on a machine with only
+    libLLVM 15, or the ``mcrt`` command there) is printed as one line with the
+    install hint instead of a traceback; code that catches it is unaffected.
+    """
+    try:
+        return ensure_variant()
+    except SetupError:
+        if not getattr(sys.excepthook, "_mcrt", False):
+            sys.excepthook = _one_line_setup_errors(sys.excepthook)
+            sys.excepthook._mcrt = True
+        raise
