@@ -1,0 +1,237 @@
+"""Common machinery of mcrt's sampler plugins: seeding, lane layout, passes.
+
+Every mcrt sampler is a *counter-based* sampler: the value of dimension ``d`` of
+sample ``j`` of pixel ``p`` is a pure function ``f(seed, p, j, d)``. The sampler
+state is therefore three size-1 integers (a seed key, the dimension index and
+the pass index) plus the lane layout, which makes ``clone()`` exact, reseeding
+free of recompilation, and lets the analysis layer ask for the points of any
+pixel through the very code Mitsuba calls (:meth:`McrtSampler.seed_lanes`).
+
+Sample index ``j`` runs past the sample count ``N`` when a pixel gets more
+passes than one (``advance()``): index ``j`` belongs to *epoch* ``j // N``, and
+each epoch is a complete, freshly permuted and jittered pattern of ``N`` points.
+
+The classes derive from the ``mi.Sampler`` of the variant that was active when
+this module was imported; ``mcrt.register()`` re-imports the sampler modules
+after a variant switch (Mitsuba does the same for its own Python plugins).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import drjit as dr
+import mitsuba as mi
+
+from ..errors import SamplerError
+from . import _layout
+from ._hash import hash_keys, hash_keys_int
+from ._stratified import split_sample
+
+#: ``seed()``'s default wavefront size: "keep the previous one" (Mitsuba's -1).
+_KEEP_WAVEFRONT = 0xFFFFFFFF
+
+
+def _literal_or_evaluated(value) -> bool:
+    return value.state in (dr.VarState.Literal, dr.VarState.Evaluated)
+
+
+class McrtSampler(mi.Sampler):
+    """Base of the mcrt sampler plugins (see the module docstring).
+
+    Subclasses set :attr:`plugin_name`, read their parameters in
+    :meth:`_configure`, round sample counts in :meth:`_effective_count` and
+    implement :meth:`_sample_1d` / :meth:`_sample_2d` as pure functions of
+    ``(dimension key, sample index)``.
+    """
+
+    plugin_name: ClassVar[str] = ""
+    #: The C++ class whose base implementations ``_run_base`` calls.
+    _cpp_base: ClassVar[type] = mi.Sampler
+
+    # -- construction -------------------------------------------------------
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self._base_calls: set[str] = set()
+        base_seed = props.get("seed", 0)
+        if not isinstance(base_seed, int) or base_seed < 0:
+            raise SamplerError(f"{self.plugin_name}: 'seed' must be a non-negative integer, "
+                               f"got {base_seed!r}")
+        self._base_seed = base_seed
+        self._configure(props)
+        self._key = mi.UInt32(0)
+        self._dim = mi.UInt32(0)
+        self._pass = mi.UInt32(0)
+        self._pass_count = 0
+        self._layout: _layout.Layout | None = None
+        self._lanes: tuple[mi.UInt32, mi.UInt32] | None = None
+        self._lane_stride = 0
+        _layout.clear_samples_per_wavefront(self)
+        self.set_sample_count(self.sample_count())
+
+    def _configure(self, props: mi.Properties) -> None:
+        """Read plugin-specific parameters (override)."""
+
+    def _parameters(self) -> dict:
+        """Plugin-specific parameters, as given to ``mi.load_dict`` (override)."""
+        return {}
+
+    def _effective_count(self, spp: int) -> int:
+        """The sample count actually used for a requested ``spp`` (override)."""
+        return spp
+
+    def _sample_count_changed(self, spp: int) -> None:
+        """Hook called after the sample count changed (override)."""
+
+    # -- nanobind re-entry guard ---------------------------------------------
+    def _run_base(self, name: str, *args) -> bool:
+        """Run the C++ base implementation of ``name`` exactly once.
+
+        Called from Python, an override that calls its C++ base is re-entered
+        once by nanobind's trampoline; called from C++, it is not. Returns False
+        in the re-entered call, which must then return at once.
+        """
+        base = getattr(self._cpp_base, name)
+        if name in self._base_calls:
+            base(self, *args)
+            return False
+        self._base_calls.add(name)
+        try:
+            base(self, *args)
+        finally:
+            self._base_calls.discard(name)
+        return True
+
+    # -- Mitsuba's sampler interface ---------------------------------------
+    def set_sample_count(self, spp: int) -> None:
+        if spp <= 0:
+            raise SamplerError(f"{self.plugin_name}: sample count must be positive, got {spp}")
+        count = self._effective_count(int(spp))
+        if not self._run_base("set_sample_count", count):
+            return
+        self._sample_count_changed(count)
+
+    def seed(self, seed: int | mi.UInt32, wavefront_size: int = _KEEP_WAVEFRONT) -> None:
+        if not self._run_base("seed", seed, wavefront_size):
+            return
+        wavefront = self.wavefront_size()  # the C++ base applied Mitsuba's rules
+        group_hint = _layout.take_samples_per_wavefront(self)
+        self._layout = _layout.resolve_layout(wavefront, self.sample_count(), group_hint,
+                                              _layout.probe_available())
+        self._lanes = None
+        self._key = self._seed_key(seed)
+        self._restart(0)
+
+    def advance(self) -> None:
+        """Move every lane to its next sample (next pass); dimensions restart at 0."""
+        self._restart(self._pass_count + 1)
+
+    def schedule_state(self) -> None:
+        dr.schedule(self._key, self._dim, self._pass)
+
+    def next_1d(self, active: mi.Bool = True) -> mi.Float:
+        pixel, sample = self._lane_indices()
+        return self._sample_1d(self._dimension_key(pixel), sample, active)
+
+    def next_2d(self, active: mi.Bool = True) -> mi.Point2f:
+        pixel, sample = self._lane_indices()
+        return self._sample_2d(self._dimension_key(pixel), sample, active)
+
+    def fork(self) -> mi.Sampler:
+        """A fresh, unseeded sampler with the same parameters."""
+        props = mi.Properties()
+        props["sample_count"] = self.sample_count()
+        props["seed"] = self._base_seed
+        for name, value in self._parameters().items():
+            props[name] = value
+        return type(self)(props)
+
+    def clone(self) -> mi.Sampler:
+        """An identical copy: it draws the same values as this sampler from now on."""
+        other = self.fork()
+        if self._layout is not None:
+            other._run_base("seed", 0, self.wavefront_size())
+        for name in ("_key", "_dim", "_pass", "_pass_count", "_layout", "_lanes",
+                     "_lane_stride"):
+            setattr(other, name, getattr(self, name))
+        return other
+
+    def to_string(self) -> str:
+        params = "".join(f", {k}={v}" for k, v in self._parameters().items())
+        return (f"{type(self).__name__}[sample_count={self.sample_count()}, "
+                f"seed={self._base_seed}{params}]")
+
+    def __repr__(self) -> str:
+        return self.to_string()
+
+    # -- mcrt extensions -----------------------------------------------------
+    def seed_lanes(self, seed: int, pixel: mi.UInt32, sample: mi.UInt32,
+                   stride: int | None = None) -> None:
+        """Seed with an explicit (pixel, sample index) per lane.
+
+        Used by the analysis layer (points of chosen pixels) and by renderers that
+        trace compacted wavefronts. ``advance()`` then adds ``stride`` (default:
+        the sample count) to every lane's sample index.
+        """
+        pixel, sample = mi.UInt32(pixel), mi.UInt32(sample)
+        if dr.width(pixel) != dr.width(sample):
+            raise SamplerError("seed_lanes(): pixel and sample arrays differ in length")
+        self._run_base("seed", seed, dr.width(pixel))
+        _layout.take_samples_per_wavefront(self)
+        self._layout = _layout.Layout(dr.width(pixel), 1)
+        self._lanes = (pixel, sample)
+        self._lane_stride = self.sample_count() if stride is None else int(stride)
+        self._key = self._seed_key(seed)
+        self._restart(0)
+
+    def skip_dimensions(self, count: int) -> None:
+        """Advance the dimension index by ``count`` without drawing samples."""
+        self._dim = self._dim + count
+
+    @property
+    def layout(self) -> _layout.Layout | None:
+        """The lane layout chosen at the last ``seed()`` (None before seeding)."""
+        return self._layout
+
+    # -- internals -------------------------------------------------------------
+    def _restart(self, pass_count: int) -> None:
+        self._pass_count = pass_count
+        self._pass = dr.opaque(mi.UInt32, pass_count)
+        self._dim = dr.opaque(mi.UInt32, 0)
+
+    def _seed_key(self, seed: int | mi.UInt32) -> mi.UInt32:
+        """Opaque per-render key; never modifies the caller's ``seed`` variable."""
+        if isinstance(seed, int):
+            return dr.opaque(mi.UInt32, hash_keys_int(self._base_seed, seed))
+        seed = mi.UInt32(seed)
+        if dr.width(seed) != 1:
+            raise SamplerError("seed() expects a single seed value")
+        if _literal_or_evaluated(seed):
+            return dr.opaque(mi.UInt32, hash_keys_int(self._base_seed, int(seed[0])))
+        key = hash_keys(mi.UInt32(self._base_seed), seed)  # a new variable
+        dr.make_opaque(key)
+        return key
+
+    def _lane_indices(self) -> tuple[mi.UInt32, mi.UInt32]:
+        """(pixel index, sample index) of every lane of the current pass."""
+        if self._layout is None:
+            raise SamplerError(f"{self.plugin_name}: seed() must be called before sampling")
+        if self._lanes is not None:
+            pixel, sample = self._lanes
+            return pixel, sample + self._pass * self._lane_stride
+        group = self._layout.group
+        lane = dr.arange(mi.UInt32, self._layout.wavefront)
+        pixel, in_group = split_sample(lane, group)
+        return pixel, in_group + self._pass * group
+
+    def _dimension_key(self, pixel: mi.UInt32) -> mi.UInt32:
+        """Key of (seed, pixel, current dimension); consumes the dimension."""
+        dim = self._dim
+        self._dim = dim + 1
+        return hash_keys(self._key, pixel, dim)
+
+    def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: mi.Bool) -> mi.Float:
+        raise NotImplementedError
+
+    def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: mi.Bool) -> mi.Point2f:
+        raise NotImplementedError

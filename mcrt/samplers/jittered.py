@@ -1,0 +1,121 @@
+"""Jittered (stratified) sampling and its jitter-free limit, the uniform grid."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import mitsuba as mi
+
+from ..errors import SamplerError
+from ._strata import MAX_STRATA
+from ._stratified import stratified_1d, stratified_2d
+from .base import McrtSampler
+
+log = logging.getLogger(__name__)
+
+
+class JitteredSampler(McrtSampler):
+    r"""
+    .. _sampler-jittered:
+
+    Jittered sampler (:monosp:`jittered`)
+    -------------------------------------
+
+    .. pluginparameters::
+
+     * - sample_count
+       - |int|
+       - Samples per pixel. Rounded up to the next square ``k*k`` (with a logged
+         note) so that 2D dimensions form a ``k x k`` grid. (Default: 4)
+     * - jitter
+       - |float|
+       - Jitter amount in [0, 1]: 0 puts every sample at its cell centre (the
+         uniform grid), 1 draws it uniformly inside its cell (stratified
+         sampling). (Default: 1.0)
+     * - seed
+       - |int|
+       - Seed offset. (Default: 0)
+
+    Every dimension pair (film position, lens, light, BSDF, ...) is stratified on
+    its own: the ``N = k^2`` samples of a pixel occupy the ``N`` cells of a
+    ``k x k`` grid, one each, and 1D dimensions use ``N`` regular strata. A
+    pseudo-random permutation per (seed, pixel, dimension) assigns samples to
+    cells, so dimensions are decorrelated ("padding"). The offset inside a cell
+    is ``0.5 + jitter * (u - 0.5)`` for a uniform ``u``.
+
+    .. tabs::
+
+        .. code-tab:: python
+
+            'type': 'jittered',
+            'sample_count': 64,
+            'jitter': 1.0
+    """
+
+    plugin_name = "jittered"
+
+    def _configure(self, props: mi.Properties) -> None:
+        jitter = props.get("jitter", 1.0)
+        if isinstance(jitter, bool) or not isinstance(jitter, (int, float)) \
+                or not 0.0 <= float(jitter) <= 1.0:
+            raise SamplerError(f"{self.plugin_name}: 'jitter' must be a number in [0, 1], "
+                               f"got {jitter!r}")
+        self.jitter = float(jitter)
+
+    def _parameters(self) -> dict:
+        return {"jitter": self.jitter}
+
+    def _effective_count(self, spp: int) -> int:
+        k = math.isqrt(spp - 1) + 1 if spp > 1 else 1
+        if k * k > MAX_STRATA:
+            raise SamplerError(f"{self.plugin_name}: at most {MAX_STRATA} samples per pixel "
+                               f"per pass, got {spp}; render in passes instead")
+        if k * k != spp:
+            log.warning("%s: sample count %d is not a square, rounding up to %d",
+                        self.plugin_name, spp, k * k)
+        return k * k
+
+    def _sample_count_changed(self, spp: int) -> None:
+        self.grid_resolution = math.isqrt(spp)
+
+    def _sample_1d(self, key, sample, active):
+        return stratified_1d(key, sample, self.sample_count(), self.jitter, active)
+
+    def _sample_2d(self, key, sample, active):
+        return stratified_2d(key, sample, self.grid_resolution, self.jitter, active)
+
+
+class UniformGridSampler(JitteredSampler):
+    r"""
+    .. _sampler-uniform_grid:
+
+    Uniform grid sampler (:monosp:`uniform_grid`)
+    ---------------------------------------------
+
+    .. pluginparameters::
+
+     * - sample_count
+       - |int|
+       - Samples per pixel, rounded up to a square ``k*k``. (Default: 4)
+     * - seed
+       - |int|
+       - Seed offset; it only changes which sample takes which cell. (Default: 0)
+
+    Regular supersampling: the ``k x k`` sub-pixel cell centres of every pixel
+    (and ``N`` regular 1D strata for 1D dimensions). This is :monosp:`jittered`
+    with ``jitter = 0``; it aliases on repetitive detail above the grid's
+    Nyquist limit, which is what it is here to show.
+
+    A pixel that gets more than ``N`` samples (several passes) continues with
+    the same grid shifted inside the cells by a low-discrepancy (R2) offset, so
+    no point is ever repeated.
+    """
+
+    plugin_name = "uniform_grid"
+
+    def _configure(self, props: mi.Properties) -> None:
+        self.jitter = 0.0
+
+    def _parameters(self) -> dict:
+        return {}

@@ -1,0 +1,75 @@
+"""The point sets a sampler gives chosen pixels, as numpy arrays.
+
+This is the analysis layer's window on the samplers, and it goes through the
+very ``next_1d``/``next_2d`` calls Mitsuba makes during a render: for mcrt's
+plugins the lanes are seeded explicitly with (pixel, sample index), so the
+points of pixel ``p`` are bit-identical to those pixel ``p`` gets in
+``mi.render`` with the same seed and sample count. Mitsuba's built-in samplers
+are seeded with their own pixel-major layout over pixels ``0 .. max(pixels)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import SamplerError
+from .base import McrtSampler
+
+#: Largest pixel index accepted for Mitsuba's built-in samplers (their layout
+#: needs a wavefront covering every pixel up to the largest one requested).
+MAX_BUILTIN_PIXEL = 1 << 16
+
+
+def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
+               dimension: int = 0, ndim: int = 2, seed: int = 0, **params) -> np.ndarray:
+    """Points of dimension ``dimension`` for each pixel in ``pixels``.
+
+    ``sampler`` is a plugin name (``params`` go to the plugin) or an instance.
+    ``dimension`` counts sampler calls as Mitsuba does (0 = film position, each
+    ``next_1d``/``next_2d`` call is one dimension). Returns an array of shape
+    ``(len(pixels), spp, ndim)`` (``spp`` after the sampler's rounding), float32.
+
+    Example::
+
+        >>> pts = point_sets("poisson_disk", pixels=range(4), spp=64)
+        >>> pts.shape
+        (4, 64, 2)
+    """
+    if ndim not in (1, 2):
+        raise ValueError("ndim must be 1 or 2")
+    if isinstance(pixels, int):
+        pixels = range(pixels)
+    pixel_ids = np.asarray(list(pixels), dtype=np.int64)
+    if pixel_ids.size == 0 or pixel_ids.min() < 0 or pixel_ids.max() >= 2**32:
+        raise SamplerError("pixels must be a non-empty list of indices in [0, 2^32)")
+    if isinstance(sampler, str):
+        sampler = mi.load_dict({"type": sampler, "sample_count": int(spp), **params})
+    else:
+        sampler = sampler.clone()
+        sampler.set_sample_count(int(spp))
+    spp = sampler.sample_count()
+
+    if isinstance(sampler, McrtSampler):
+        pixel = mi.UInt32(np.repeat(pixel_ids, spp).astype(np.uint32))
+        sample = mi.UInt32(np.tile(np.arange(spp, dtype=np.uint32), pixel_ids.size))
+        sampler.seed_lanes(seed, pixel, sample)
+        sampler.skip_dimensions(dimension)
+        rows = np.arange(pixel_ids.size)
+    else:
+        count = int(pixel_ids.max()) + 1
+        if count > MAX_BUILTIN_PIXEL:
+            raise SamplerError(f"built-in samplers: pixel indices must be < {MAX_BUILTIN_PIXEL}")
+        sampler.set_samples_per_wavefront(spp)
+        sampler.seed(seed, count * spp)
+        for _ in range(dimension):
+            sampler.next_1d()
+        rows = pixel_ids
+    values = sampler.next_2d() if ndim == 2 else sampler.next_1d()
+    array = np.array(values, dtype=np.float32)
+    array = array.T if ndim == 2 else array[:, None]  # (lanes, ndim)
+    dr.sync_thread()
+    return array.reshape(-1, spp, ndim)[rows]
