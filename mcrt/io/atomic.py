@@ -1,0 +1,165 @@
+"""Atomic file writes and the error type of mcrt's image I/O.
+
+Every image mcrt writes goes through :func:`atomic_path`: the writer fills a
+temporary file *in the destination's directory* (so the final rename never
+crosses a file system), the data are flushed to disk, and ``os.replace`` moves
+the file into place in one step. A crash or an exception at any point leaves
+either the previous file or the new one at ``path``, never a truncated mix, and
+the temporary file is removed when the writer fails.
+
+Temporary files are named ``.<name>.<random>.tmp`` (hidden, and without the
+image extension, so globs such as ``*.exr`` never pick up a half-written one).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import secrets
+from collections.abc import Iterator
+from pathlib import Path
+
+from ..errors import McrtError
+
+
+class ImageIOError(McrtError):
+    """An image could not be read or written because of the user's path or
+    environment (missing directory, permission denied, disk full, not an EXR, ...).
+
+    The message is one line and names the path.
+    """
+
+
+def _reason(exc: OSError) -> str:
+    """A short, human-readable reason for an ``OSError``."""
+    code = exc.errno
+    if code == errno.ENOENT:
+        return "the directory does not exist"
+    if code in (errno.EACCES, errno.EPERM):
+        return "permission denied"
+    if code == errno.ENOTDIR:
+        return "a component of the path is not a directory"
+    if code == errno.EISDIR:
+        return "the path is a directory"
+    if code == errno.EROFS:
+        return "read-only file system"
+    if code == errno.ENOSPC:
+        return "no space left on device"
+    if code == errno.EDQUOT:
+        return "disk quota exceeded"
+    return exc.strerror or str(exc)
+
+
+def write_error(path: str | os.PathLike, exc: OSError | str) -> ImageIOError:
+    """Build the one-line :class:`ImageIOError` for a failed write of ``path``."""
+    reason = exc if isinstance(exc, str) else _reason(exc)
+    return ImageIOError(f"cannot write '{os.fspath(path)}': {reason}")
+
+
+def read_error(path: str | os.PathLike, exc: OSError | str) -> ImageIOError:
+    """Build the one-line :class:`ImageIOError` for a failed read of ``path``."""
+    if isinstance(exc, OSError) and exc.errno == errno.ENOENT:
+        reason = "no such file"
+    else:
+        reason = exc if isinstance(exc, str) else _reason(exc)
+    return ImageIOError(f"cannot read '{os.fspath(path)}': {reason}")
+
+
+def _fsync_file(path: str) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(directory: str) -> None:
+    """Persist a rename (best effort: not every platform can open a directory)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[str]:
+    """Yield a temporary path next to ``path``; move it to ``path`` on success.
+
+    Usage::
+
+        with atomic_path("out/image.exr") as tmp:
+            write_something(tmp)      # any writer that takes a file name
+
+    * The temporary file already exists (empty, created with the process umask)
+      when the block starts; the writer may overwrite or truncate it.
+    * If the block raises, the temporary file is removed and the exception
+      propagates; ``path`` is untouched.
+    * On success the file is flushed (``fsync``) and renamed over ``path`` with
+      ``os.replace``, which is atomic on POSIX and Windows.
+    * ``OSError`` from creating, flushing or renaming the file is turned into a
+      one-line :class:`ImageIOError` (a :class:`~mcrt.errors.McrtError`);
+      ``OSError`` raised by the writer inside the block is converted as well.
+    """
+    final = os.path.abspath(os.fspath(path))
+    directory, name = os.path.split(final)
+    if not name:
+        raise write_error(path, "the path names a directory, not a file")
+    if os.path.isdir(final):
+        raise write_error(path, "the path is a directory")
+    if not os.path.isdir(directory):
+        reason = ("a component of the path is not a directory" if os.path.exists(directory)
+                  else f"the directory '{directory}' does not exist")
+        raise write_error(path, reason)
+
+    tmp = None
+    for _ in range(16):
+        candidate = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp")
+        try:
+            # 0o666 & ~umask: the final file gets ordinary permissions (mkstemp's 0o600 would not).
+            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise write_error(path, exc) from None
+        os.close(fd)
+        tmp = candidate
+        break
+    if tmp is None:  # pragma: no cover - 16 collisions of a 32-bit random name
+        raise write_error(path, "could not create a temporary file")
+
+    try:
+        try:
+            yield tmp
+        except OSError as exc:
+            raise write_error(path, exc) from exc
+        try:
+            if fsync:
+                _fsync_file(tmp)
+            os.replace(tmp, final)
+        except OSError as exc:
+            raise write_error(path, exc) from exc
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    if fsync:
+        _fsync_dir(directory)
+
+
+def ensure_readable(path: str | os.PathLike) -> Path:
+    """Return ``path`` as a :class:`Path`; raise :class:`ImageIOError` unless it
+    is an existing regular file that can be opened for reading."""
+    p = Path(path)
+    try:
+        with open(p, "rb"):
+            pass
+    except OSError as exc:
+        raise read_error(path, exc) from None
+    return p

@@ -1,0 +1,177 @@
+"""8-bit sRGB PNGs of linear renders, and labelled contact sheets.
+
+Display rule (one rule, used by every function here)
+----------------------------------------------------
+Given linear RGB values ``x`` and an ``exposure`` in stops:
+
+1. **Non-finite pixels** - a pixel with any NaN, +Inf or -Inf component is
+   drawn in :data:`NONFINITE_COLOUR`, opaque magenta ``(255, 0, 255)``, so
+   numerical bugs are impossible to miss. (It is never clipped or mapped to 0.)
+2. **Exposure** - the other pixels are scaled by ``2 ** exposure``.
+3. **Clipping** - each channel is clipped to ``[0, 1]`` on its own: values above
+   1 become 1 (full white for a grey pixel; a saturated colour keeps its
+   clipped hue), negative values become 0. No tone mapping is applied.
+4. **Encoding** - the sRGB transfer function (IEC 61966-2-1, via
+   ``colour.cctf_encoding(..., function="sRGB")``: ``12.92 x`` up to
+   ``x = 0.0031308``, ``1.055 x^(1/2.4) - 0.055`` above), then
+   ``floor(255 v + 0.5)`` to ``uint8``.
+
+So linear 0 -> 0, 0.5 -> 188, 1 -> 255 and 2 -> 255.
+
+Accepted inputs are float arrays of shape (H, W, 3), (H, W, 4) (alpha is
+ignored, no compositing), (H, W) or (H, W, 1) (grey, replicated to RGB), and
+anything ``numpy.asarray`` converts to those (``mi.TensorXf``, ``mi.Bitmap``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from .atomic import atomic_path
+
+#: Colour of pixels with a NaN or infinite component.
+NONFINITE_COLOUR = (255, 0, 255)
+
+
+def _as_rgb(rgb_linear) -> np.ndarray:
+    a = np.asarray(rgb_linear)
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if a.ndim == 2:
+        a = np.repeat(a[:, :, None], 3, axis=2)
+    elif a.ndim == 3 and a.shape[2] == 4:
+        a = a[:, :, :3]
+    elif not (a.ndim == 3 and a.shape[2] == 3):
+        raise ValueError(f"expected an image of shape (H, W), (H, W, 1), (H, W, 3) or "
+                         f"(H, W, 4), got {a.shape}")
+    if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
+        raise ValueError(f"expected real pixel values, got dtype {a.dtype}")
+    return a.astype(np.float64)
+
+
+def encode_srgb(rgb_linear, exposure: float = 0.0) -> np.ndarray:
+    """Encode linear RGB to an ``(H, W, 3)`` ``uint8`` sRGB image.
+
+    Applies the module's display rule: non-finite pixels -> magenta, scale by
+    ``2 ** exposure``, clip each channel to [0, 1], sRGB transfer function,
+    round to 8 bits.
+    """
+    import colour
+
+    if not math.isfinite(exposure):
+        raise ValueError(f"exposure must be a finite number of stops, got {exposure!r}")
+    x = _as_rgb(rgb_linear)
+    bad = ~np.all(np.isfinite(x), axis=2)
+    x = np.where(bad[:, :, None], 0.0, x) * (2.0 ** exposure)
+    x = np.clip(x, 0.0, 1.0)
+    v = np.asarray(colour.cctf_encoding(x, function="sRGB"), dtype=np.float64)
+    out = np.floor(np.clip(v, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    out[bad] = NONFINITE_COLOUR
+    return out
+
+
+def _save_png(path, image) -> None:
+    """Write a PIL image as PNG to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        image.save(tmp, format="PNG")
+
+
+def write_png(path: str | os.PathLike, rgb_linear, exposure: float = 0.0) -> None:
+    """Write linear RGB as an 8-bit sRGB PNG (display rule above), atomically.
+
+    Raises :class:`~mcrt.io.atomic.ImageIOError` (an
+    :class:`~mcrt.errors.McrtError`) when ``path`` cannot be written; a previous
+    file at ``path`` is then left intact.
+    """
+    from PIL import Image
+
+    _save_png(path, Image.fromarray(encode_srgb(rgb_linear, exposure), mode="RGB"))
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except (TypeError, OSError, ImportError):  # old Pillow or no FreeType: bitmap font
+        return ImageFont.load_default()
+
+
+def contact_sheet(images: Sequence[tuple[str, object]], columns: int | None = None, *,
+                  exposure: float = 0.0, zoom: int = 1, title: str | None = None,
+                  font_size: int = 14, padding: int = 8):
+    """Build a labelled grid of images and return it as a ``PIL.Image`` (RGB).
+
+    ``images`` is a sequence of ``(label, rgb_linear)`` (labels may span several
+    lines, separated by ``"\\n"``); each image is encoded
+    with :func:`encode_srgb` (same ``exposure`` for all) and enlarged by the
+    integer ``zoom`` with nearest-neighbour replication, so every rendered pixel
+    stays a sharp block of identical pixels (no resampling that would blur
+    noise or add its own moire). Images may differ in size; each sits in the
+    top-left of a cell sized for the largest image and the widest label.
+    ``columns`` defaults to ``ceil(sqrt(len(images)))``.
+    """
+    from PIL import Image, ImageDraw
+
+    if not images:
+        raise ValueError("a contact sheet needs at least one image")
+    if not isinstance(zoom, int) or zoom < 1:
+        raise ValueError(f"zoom must be a positive integer, got {zoom!r}")
+    n = len(images)
+    columns = columns or math.ceil(math.sqrt(n))
+    if columns < 1:
+        raise ValueError(f"columns must be positive, got {columns!r}")
+    rows = math.ceil(n / columns)
+
+    tiles = []
+    for label, rgb in images:
+        u8 = encode_srgb(rgb, exposure)
+        if zoom > 1:
+            u8 = np.repeat(np.repeat(u8, zoom, axis=0), zoom, axis=1)
+        tiles.append((str(label), Image.fromarray(u8, mode="RGB")))
+
+    font = _font(font_size)
+    measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+
+    def text_size(text: str) -> tuple[int, int]:
+        """Extent of ``text`` drawn at (0, 0), multi-line labels included."""
+        if not text:
+            return 0, 0
+        _, _, right, bottom = measure.textbbox((0, 0), text, font=font)
+        return right, bottom
+
+    label_h = max(text_size(lbl)[1] for lbl, _ in tiles)
+    label_h = max(label_h, font_size) + padding // 2
+    cell_w = max(max(t.width for _, t in tiles), max(text_size(lbl)[0] for lbl, _ in tiles))
+    cell_h = label_h + max(t.height for _, t in tiles)
+    title_h = text_size(title)[1] + padding if title else 0
+
+    width = padding + columns * (cell_w + padding)
+    height = padding + title_h + rows * (cell_h + padding)
+    sheet = Image.new("RGB", (width, height), (32, 32, 32))
+    draw = ImageDraw.Draw(sheet)
+    if title:
+        draw.text((padding, padding), title, fill=(235, 235, 235), font=font)
+    for i, (label, tile) in enumerate(tiles):
+        r, c = divmod(i, columns)
+        x = padding + c * (cell_w + padding)
+        y = padding + title_h + r * (cell_h + padding)
+        draw.text((x, y), label, fill=(220, 220, 220), font=font)
+        sheet.paste(tile, (x, y + label_h))
+    return sheet
+
+
+def write_contact_sheet(path: str | os.PathLike, images: Sequence[tuple[str, object]],
+                        columns: int | None = None, *, exposure: float = 0.0, zoom: int = 1,
+                        title: str | None = None, font_size: int = 14) -> None:
+    """Write :func:`contact_sheet` ``(images, columns, ...)`` as a PNG, atomically."""
+    _save_png(path, contact_sheet(images, columns, exposure=exposure, zoom=zoom, title=title,
+                                  font_size=font_size))
+
+
+__all__ = ["NONFINITE_COLOUR", "contact_sheet", "encode_srgb", "write_contact_sheet",
+           "write_png"]
