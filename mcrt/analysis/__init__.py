@@ -1,0 +1,1 @@
+"""Analysis layer: error metrics, statistics, pattern analysis, convergence."""

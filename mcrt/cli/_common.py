@@ -1,0 +1,64 @@
+"""Argument types and output checks shared by the subcommands."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+from ..errors import McrtError
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 that fits in 32 bits (seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2^32), got {value}")
+    return value
+
+
+def output_stem(out: str | None, default: str) -> Path:
+    """``-o OUT`` without a trailing image suffix (``OUT.exr`` and ``OUT.png`` get written)."""
+    path = Path(out) if out else Path(default)
+    if path.suffix.lower() in (".exr", ".png"):
+        path = path.with_suffix("")
+    return path
+
+
+def ensure_writable_dir(directory: Path) -> Path:
+    """Create ``directory`` if needed and prove we can write there, before any work."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise McrtError(f"cannot create output directory {directory}: {error.strerror}") from None
+    if not directory.is_dir():
+        raise McrtError(f"output directory {directory} is not a directory")
+    try:
+        with tempfile.NamedTemporaryFile(dir=directory, prefix=".mcrt-write-test-"):
+            pass
+    except OSError as error:
+        raise McrtError(f"cannot write to output directory {directory}: {error.strerror}") from None
+    return directory
+
+
+def check_output_files(*paths: Path) -> None:
+    """Fail early if an output path exists but cannot be replaced."""
+    for path in paths:
+        ensure_writable_dir(path.parent if str(path.parent) else Path("."))
+        if path.exists() and (path.is_dir() or not os.access(path, os.W_OK)):
+            raise McrtError(f"cannot overwrite {path}")

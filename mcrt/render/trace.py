@@ -1,0 +1,88 @@
+"""Trace one wavefront of camera samples: the per-lane core of every renderer.
+
+This is Mitsuba's ``SamplingIntegrator::render_sample`` in Python, so that mcrt
+can choose which lanes to trace (all pixels, passes, compacted adaptive
+wavefronts) and what to do with each sample's value (develop a film, or keep
+exact per-pixel statistics). Mitsuba's own camera-sample order is kept:
+pixel position (2D), then the lens (2D) only if the sensor has an aperture,
+then time (1D) only if the shutter is open for a non-zero time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+
+@dataclass
+class CameraSamples:
+    """Per-lane results of :func:`trace`, still lazy Dr.Jit expressions."""
+
+    #: Integer pixel of each lane (film coordinates, crop offset included).
+    pixel: mi.Vector2i
+    #: Continuous film position where the sample lands (for the film's filter).
+    position: mi.Vector2f
+    #: Sensor-weighted radiance of the sample (linear sRGB).
+    rgb: mi.Color3f
+    #: Whether the integrator produced a valid sample (alpha).
+    valid: mi.Bool
+    #: Extra channels from AOV integrators, in ``integrator.aov_names()`` order.
+    aovs: list[mi.Float]
+    #: Wavelengths of the ray (needed by ``ImageBlock.put``).
+    wavelengths: mi.Spectrum
+
+
+def film_grid_size(film: mi.Film) -> mi.ScalarVector2u:
+    """Number of pixels Mitsuba samples: the crop window plus the filter
+    border when the film samples it."""
+    size = mi.ScalarVector2u(film.crop_size())
+    if film.sample_border():
+        size += 2 * film.rfilter().border_size()
+    return size
+
+
+def pixel_of_index(film: mi.Film, index: mi.UInt32) -> mi.Vector2i:
+    """Film pixel of a linear pixel index over :func:`film_grid_size`."""
+    width = int(film_grid_size(film)[0])
+    y = index // width
+    pos = mi.Vector2i(mi.Int32(index - y * width), mi.Int32(y))
+    if film.sample_border():
+        pos -= film.rfilter().border_size()
+    return pos + mi.Vector2i(film.crop_offset())
+
+
+def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
+          integrator: mi.SamplingIntegrator, pixel: mi.Vector2i, spp: int,
+          active: mi.Bool | bool = True) -> CameraSamples:
+    """Draw one camera sample per lane at integer ``pixel`` and integrate it.
+
+    ``sampler`` must already be seeded for ``dr.width(pixel)`` lanes. ``spp`` is
+    the pixel's total sample count (it scales ray differentials, as in Mitsuba).
+    """
+    film = sensor.film()
+    crop_size = mi.ScalarVector2f(film.crop_size())
+    scale = 1.0 / crop_size
+    offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+
+    position = mi.Vector2f(pixel) + sampler.next_2d(active)
+    adjusted = dr.fma(position, scale, offset)
+
+    aperture = mi.Point2f(0.5)
+    if sensor.needs_aperture_sample():
+        aperture = sampler.next_2d(active)
+
+    time = mi.Float(sensor.shutter_open())
+    if sensor.shutter_open_time() > 0:
+        time += sampler.next_1d(active) * sensor.shutter_open_time()
+
+    # mcrt renders RGB variants only: no wavelength dimension is drawn.
+    ray, ray_weight = sensor.sample_ray_differential(time, 0.0, adjusted, aperture, active)
+    if ray.has_differentials:
+        ray.scale_differential(dr.rsqrt(float(spp)))
+
+    spec, valid, aovs = integrator.sample(scene, sampler, ray, sensor.get_medium(), active)
+    return CameraSamples(pixel=pixel, position=position, rgb=mi.Color3f(ray_weight * spec),
+                         valid=mi.Bool(valid),
+                         aovs=list(aovs), wavelengths=ray.wavelengths)

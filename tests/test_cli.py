@@ -1,0 +1,126 @@
+"""`mcrt render` and friends: outputs, and user errors as one-line messages."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mcrt.cli.render_cmd as render_cmd
+from mcrt.cli import main
+from mcrt.io import read_exr
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+CORNELL = str(SCENES / "cornell_box.xml")
+SMALL = ["-D", "res=16"]
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    try:
+        code = main(list(argv))
+    except SystemExit as exit_:  # argparse errors
+        code = exit_.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("sampler", ["jittered", "poisson_disk", "uniform_grid", "independent",
+                                     "stratified", "multijitter", "orthogonal", "ldsampler"])
+def test_render_writes_float32_exr_and_png(tmp_path, capsys, sampler):
+    out = tmp_path / "img"
+    code, stdout, _ = run_cli(capsys, "-q", "render", CORNELL, *SMALL, "--sampler", sampler,
+                              "--spp", "4", "--seed", "2", "-o", str(out))
+    assert code == 0
+    layers, meta = read_exr(out.with_suffix(".exr"))
+    rgb = layers["rgb"]
+    assert rgb.dtype == np.float32 and rgb.shape == (16, 16, 3)
+    assert np.isfinite(rgb).all() and rgb.mean() > 0.01
+    assert meta["sampler"] == sampler and meta["seed"] == 2
+    assert out.with_suffix(".png").stat().st_size > 0
+    assert f"sampler {sampler}" in stdout and "samples/s" in stdout and "time" in stdout
+    spp = int(stdout.split("spp ")[1].split()[0])
+    assert spp == meta["spp"] >= 4  # orthogonal rounds 4 up to 9, the others keep 4
+
+
+def test_render_defaults_come_from_the_scene(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, stdout, _ = run_cli(capsys, "-q", "render", CORNELL, *SMALL, "-D", "spp=9")
+    assert code == 0
+    assert "sampler jittered" in stdout and "spp 9" in stdout
+    assert (tmp_path / "cornell_box_jittered.exr").exists()
+
+
+def test_same_seed_same_image(tmp_path, capsys):
+    images = []
+    for name in ("a", "b"):
+        run_cli(capsys, "-q", "render", CORNELL, *SMALL, "--spp", "4", "-o", str(tmp_path / name))
+        images.append(read_exr(tmp_path / f"{name}.exr")[0]["rgb"])
+    np.testing.assert_allclose(images[0], images[1], rtol=1e-5, atol=1e-6)
+
+
+@pytest.fixture
+def no_render(monkeypatch):
+    """Fail the test if rendering starts: user errors must be caught before."""
+    def forbidden(*args, **kwargs):
+        raise AssertionError("rendering started despite a user error")
+    monkeypatch.setattr(render_cmd, "render_film", forbidden)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["render", "missing.xml"], "scene file not found"),
+    (["render", CORNELL, "--sampler", "nope"], "unknown sampler 'nope'"),
+    (["render", CORNELL, "--sampler", "uniform"], "unknown sampler 'uniform'"),
+    (["render", CORNELL, "--spp", "0"], "must be a positive integer"),
+    (["render", CORNELL, "--spp", "-3"], "must be a positive integer"),
+    (["render", CORNELL, "--spp", "many"], "expected a positive integer"),
+    (["render", CORNELL, "--seed", "-1"], "must be in [0, 2^32)"),
+    (["render", CORNELL, "-D", "nokey"], "-D expects key=value"),
+    (["render", CORNELL, "-D", "unused=1"], "unused parameters"),
+    (["render", CORNELL, "-D", "spp=abc"], "could not parse integer"),
+    (["render", CORNELL, "-o", "/proc/no/such/dir/img"], "cannot create output directory"),
+    (["render"], "required"),
+    (["nosuchcommand"], "invalid choice"),
+])
+def test_user_errors_are_one_line_before_rendering(capsys, no_render, argv, message):
+    code, stdout, stderr = run_cli(capsys, *argv)
+    assert code == 2
+    assert message in stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
+    assert "Traceback" not in stderr
+
+
+@pytest.mark.parametrize("content, message", [
+    ("<scene version='3.0.0'><shape type='spheer'/></scene>", 'Plugin "spheer" not found'),
+    ("<scene version='3.0.0'><integrator type='path'", "Parsing of XML file"),
+    ("<sampler version='3.0.0' type='jittered'/>", "does not describe a scene"),
+    ("<scene version='3.0.0'><sensor type='perspective'><sampler type='jittered'>"
+     "<float name='jitter' value='2'/></sampler></sensor></scene>", "'jitter' must be"),
+])
+def test_malformed_scenes_are_one_line_errors(tmp_path, capsys, no_render, content, message):
+    scene = tmp_path / "scene.xml"
+    scene.write_text(content)
+    code, _, stderr = run_cli(capsys, "render", str(scene))
+    assert code == 2 and message in stderr
+    assert len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr
+
+
+def test_unwritable_output_file_is_refused_before_rendering(tmp_path, capsys, no_render):
+    (tmp_path / "img.exr").mkdir()  # a directory where the EXR should go
+    code, _, stderr = run_cli(capsys, "render", CORNELL, "-o", str(tmp_path / "img"))
+    assert code == 2 and "cannot overwrite" in stderr
+
+
+def test_missing_libllvm_is_a_clear_message():
+    """The console script on a machine whose libLLVM cannot be loaded prints one
+    line naming what to install, instead of crashing in LLVM."""
+    env = dict(os.environ, DRJIT_LIBLLVM_PATH="/nonexistent/libLLVM.so")
+    proc = subprocess.run([sys.executable, "-m", "mcrt", "render", CORNELL], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("mcrt:")]
+    assert len(lines) == 1 and "libllvm19" in lines[0] and "DRJIT_LIBLLVM_PATH" in lines[0]
+    assert "Traceback" not in proc.stderr
