@@ -24,9 +24,11 @@ def _variant():
 
 
 def small_cornell(size: int = 32, sampler: str = "independent", spp: int = 16,
-                  integrator: dict | None = None) -> mi.Scene:
+                  integrator: dict | None = None, box_filter: bool = False) -> mi.Scene:
     """Mitsuba's Cornell box at a small resolution (fast to render in tests)."""
     scene = mi.cornell_box()
+    if box_filter:
+        scene["sensor"]["film"]["rfilter"] = {"type": "box"}
     scene["sensor"]["film"]["width"] = size
     scene["sensor"]["film"]["height"] = size
     scene["sensor"]["film"]["component_format"] = "float32"

@@ -1,22 +1,31 @@
-"""Render a scene in passes, with progress, into the scene's film.
+"""Render a scene in passes, with progress, into a film or into exact statistics.
 
 Each pass traces ``g`` samples of every pixel (``g`` divides the sample count),
 and the sampler is ``advance()``-d between passes, so the passes of one render
 together form *one* stratified pattern per pixel (``jittered`` at 1024 spp in
 four passes of 256 fills all 1024 strata), exactly as Mitsuba's own multi-pass
-renders do. The image is developed by the film (reconstruction filter and all),
-so a one-pass render equals ``mi.render`` with the same sampler and seed.
+renders do.
+
+Two accumulators share that loop:
+
+* :func:`render_film` develops the scene's film (reconstruction filter and
+  all), so a one-pass render equals ``mi.render`` with the same sampler and seed;
+* :func:`render_stats` keeps per-pixel moments ``(n, mean, M2)`` of the samples
+  in float64 (box-binned: a sample counts for the pixel it was drawn in), merged
+  across passes with Chan's formula, with NaN/Inf samples counted and left out.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..analysis.statistics import PixelStats
 from ..errors import McrtError
 from ..samplers._stratified import split_sample
 from .trace import film_grid_size, pixel_of_index, trace
@@ -80,13 +89,36 @@ def channel_names(film: mi.Film, count: int) -> list[str]:
     return names
 
 
+def _pass_plan(pixels: int, spp: int, max_lanes: int, passes: int | None) -> int:
+    """Samples per pixel per pass: as many as fit, or ``spp // passes`` if forced."""
+    if passes is None:
+        return samples_per_pass(pixels, spp, max_lanes)
+    if passes <= 0 or spp % passes:
+        raise McrtError(f"cannot split {spp} samples per pixel into {passes} equal passes")
+    return spp // passes
+
+
+def _seeded_lanes(film: mi.Film, sampler: mi.Sampler, seed: int, pixels: int, group: int):
+    """Seed ``sampler`` for ``pixels * group`` pixel-major lanes; return the lanes'
+    film pixels and linear pixel indices."""
+    lanes = pixels * group
+    sampler.set_samples_per_wavefront(group)
+    sampler.seed(seed, lanes)
+    pixel_index, _ = split_sample(dr.arange(mi.UInt32, lanes), group)
+    return pixel_of_index(film, pixel_index), pixel_index
+
+
 def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
                 seed: int = 0, sensor: int = 0, progress: bool = False,
-                max_lanes: int = MAX_LANES_PER_PASS) -> FilmRender:
+                max_lanes: int = MAX_LANES_PER_PASS, passes: int | None = None,
+                on_pass: Callable[[int, int], None] | None = None) -> FilmRender:
     """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
 
     Returns the developed film as a numpy array together with the effective
     sample count (samplers may round it), number of passes and wall time.
+    ``passes`` forces the number of passes (it must divide the sample count);
+    ``on_pass(index, count)`` runs before each pass is traced (e.g. to move
+    geometry for a motion-blur sub-frame).
     """
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
@@ -98,9 +130,8 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
 
     grid = film_grid_size(film)
     pixels = int(grid[0]) * int(grid[1])
-    group = samples_per_pass(pixels, spp, max_lanes)
+    group = _pass_plan(pixels, spp, max_lanes, passes)
     n_passes = spp // group
-    lanes = pixels * group
 
     film.prepare(integrator.aov_names())
     block = film.create_block()
@@ -108,16 +139,14 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     block.set_coalesce(block.coalesce() and group >= 4)
     has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
     box_filter = film.rfilter().is_box_filter()
+    pixel, _ = _seeded_lanes(film, sampler, seed, pixels, group)
 
-    sampler.set_samples_per_wavefront(group)
-    sampler.seed(seed, lanes)
-    pixel_index, _ = split_sample(dr.arange(mi.UInt32, lanes), group)
-    pixel = pixel_of_index(film, pixel_index)
-
-    bar = _progress_bar(n_passes, lanes, enabled=progress and n_passes > 1)
+    bar = _progress_bar(n_passes, pixels * group, enabled=progress and n_passes > 1)
     dr.sync_thread()
     start = time.perf_counter()
-    for _ in range(n_passes):
+    for index in range(n_passes):
+        if on_pass is not None:
+            on_pass(index, n_passes)
         s = trace(scene, sensor_obj, sampler, integrator, pixel, spp)
         values = [s.rgb.x, s.rgb.y, s.rgb.z]
         values += [dr.select(s.valid, 1.0, 0.0), mi.Float(1.0)] if has_alpha else [mi.Float(1.0)]
@@ -136,6 +165,89 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     array = np.array(image, dtype=np.float32)
     return FilmRender(image=array, channels=channel_names(film, array.shape[-1]), spp=spp,
                       passes=n_passes, seconds=seconds, pixels=pixels)
+
+
+@dataclass
+class StatsRender:
+    """Per-pixel sample statistics of a render and how they were made."""
+
+    stats: PixelStats  # over the film's sampled pixel grid (crop window [+ border])
+    spp: int
+    passes: int
+    seconds: float
+
+    @property
+    def samples(self) -> int:
+        return self.stats.samples + int(self.stats.nonfinite.sum())
+
+
+def pass_moments(rgb: mi.Color3f, group: int) -> tuple[mi.Float64, list[mi.Float64],
+                                                        list[mi.Float64], mi.Float64]:
+    """Per-pixel ``(n, mean, M2, nonfinite)`` of one pass of pixel-major lanes.
+
+    Each pixel's ``group`` consecutive lanes are reduced in float64 with
+    ``dr.block_sum`` (two-pass: mean first, then squared deviations). A sample
+    with any non-finite channel is excluded from all three channels and counted.
+    """
+    channels = [mi.Float64(c) for c in (rgb.x, rgb.y, rgb.z)]
+    finite = dr.isfinite(channels[0]) & dr.isfinite(channels[1]) & dr.isfinite(channels[2])
+    count = dr.block_sum(dr.select(finite, mi.Float64(1.0), 0.0), group)
+    safe = dr.maximum(count, 1.0)
+    means = [dr.block_sum(dr.select(finite, c, 0.0), group) / safe for c in channels]
+    dr.eval(count, means)
+    m2 = [dr.block_sum(dr.select(finite, dr.square(c - dr.repeat(m, group)), 0.0), group)
+          for c, m in zip(channels, means)]
+    return count, means, m2, group - count
+
+
+def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, seed: int = 0,
+                 sensor: int = 0, progress: bool = False, max_lanes: int = 1 << 22,
+                 passes: int | None = None,
+                 on_pass: Callable[[int, int], None] | None = None) -> StatsRender:
+    """Render ``scene`` and return exact per-pixel sample moments (float64).
+
+    The pixel grid is the film's sampled grid (:func:`film_grid_size`); a sample
+    belongs to the pixel it was drawn in (box filter), whatever the scene's
+    reconstruction filter. ``passes`` and ``on_pass`` as in :func:`render_film`.
+    """
+    sensor_obj = scene.sensors()[sensor]
+    integrator = sampling_integrator(scene)
+    film = sensor_obj.film()
+    if spp is not None:
+        sampler.set_sample_count(spp)
+    spp = sampler.sample_count()
+    grid = film_grid_size(film)
+    width, height = int(grid[0]), int(grid[1])
+    pixels = width * height
+    group = _pass_plan(pixels, spp, max_lanes, passes)
+    n_passes = spp // group
+    pixel, _ = _seeded_lanes(film, sampler, seed, pixels, group)
+
+    total = PixelStats.zeros(height, width, 3)
+    bar = _progress_bar(n_passes, pixels * group, enabled=progress and n_passes > 1)
+    dr.sync_thread()
+    start = time.perf_counter()
+    for index in range(n_passes):
+        if on_pass is not None:
+            on_pass(index, n_passes)
+        s = trace(scene, sensor_obj, sampler, integrator, pixel, spp)
+        rgb = mi.Color3f(s.rgb)
+        dr.eval(rgb)
+        sampler.advance()
+        sampler.schedule_state()
+        count, means, m2, bad = pass_moments(rgb, group)
+        shape = (height, width)
+        part = PixelStats(
+            count=np.array(count, dtype=np.float64).astype(np.int64).reshape(shape),
+            mean=np.stack([np.array(m, dtype=np.float64) for m in means], -1).reshape(*shape, 3),
+            m2=np.stack([np.array(m, dtype=np.float64) for m in m2], -1).reshape(*shape, 3),
+            nonfinite=np.array(bad, dtype=np.float64).astype(np.int64).reshape(shape))
+        total = total.merge(part)
+        bar.update(1)
+    dr.sync_thread()
+    seconds = time.perf_counter() - start
+    bar.close()
+    return StatsRender(stats=total, spp=spp, passes=n_passes, seconds=seconds)
 
 
 class _NoBar:
