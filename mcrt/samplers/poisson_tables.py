@@ -18,7 +18,8 @@ Every set of ``n >= 2`` points has a *toroidal* minimum distance (distance on
 the unit torus, i.e. the unit square with opposite edges identified) of at least
 ``RHO_TARGET * d_hex(n)`` with :data:`RHO_TARGET` = 0.76, where
 ``d_hex(n) = sqrt(2 / (sqrt(3) n))`` is the spacing of a hexagonal packing of
-``n`` points on the unit square (no ``n`` points on the torus are farther apart).
+``n`` points on the unit square (no ``n`` points on the torus have a larger
+minimum distance).
 The sampler promises :data:`RHO_GUARANTEE` = 0.75; the margin absorbs its
 float32 symmetries and shifts (~1e-7). Saturated (maximal) dart throwing reaches
 ``rho = d_min / d_hex ~ 0.78`` [RSA]_, so 0.76 is "as good as maximal dart
@@ -49,22 +50,24 @@ Wei [Wei08]_, run with numpy on many sets at once:
    uniform over the remaining region), drops darts closer than ``r`` to an
    accepted point, keeps the highest-priority dart of each cell, then every dart
    with no higher-priority dart closer than ``r`` (one step of Luby's parallel
-   maximal independent set; priorities are a random permutation). The accepted
-   darts are exactly those sequential dart throwing in priority order would
-   accept, minus some that are simply rethrown later. Squares of occupied cells
-   and of complete sets are dropped.
+   maximal independent set; priorities are a random permutation, increasing from
+   round to round). The accepted darts are a subset of those that sequential dart
+   throwing in priority order would accept; the others are simply rethrown later.
+   Squares of occupied cells and of complete sets are dropped. (The very first
+   round, on the empty grid, uses a random 35% of the cells: with a dart in every
+   cell most would lose against a neighbour.)
 3. After a few rounds every active square is split into four and the children
    lying inside the disk of one point (all four corners closer than ``r``) are
    dropped [EMP11]_; darts then go only where there may still be room. After
-   five levels (squares of ``1/32`` of a cell) the set is maximal up to a
-   negligible area.
+   five levels (squares of ``1/32`` of a cell side) the set is nearly maximal:
+   only tiny slivers of uncovered area are left.
 4. A set is complete when it holds ``n`` points; if the last round overshoots,
    it keeps the ``n`` darts earliest in priority order (a subset of a valid set is
    valid). Stopping at ``n`` happens when the set is ~96% of the way to
    saturation (the saturated count at this radius is ~1.04 ``n``), so the few
    remaining gaps are scattered at random. Sets that saturate with fewer than
-   ``n`` points (up to ~18% for tiny ``n``, ~0 beyond a few hundred points) are
-   regenerated; small ``n`` throws a few extra sets up front instead.
+   ``n`` points (10-23% of the sets for ``n < 40``, ~1% at ``n = 256``, none seen
+   beyond) are regenerated; small ``n`` throws a few extra sets up front instead.
 
 The work is linear in the number of points: every round and split handles flat
 blocks of (25 neighbour offsets x active squares), and the number of rounds is
@@ -129,7 +132,7 @@ __all__ = [
 MAX_POINTS = 16384
 
 #: Version of the generator's output; part of the cache file name.
-VERSION = 1
+VERSION = 2
 
 #: Spacing the sampler promises (``d_min >= RHO_GUARANTEE * d_hex``).
 RHO_GUARANTEE = 0.75
@@ -141,6 +144,7 @@ RHO_TARGET = 0.76
 TABLE_SEED = 0x5EED_B1E
 
 _ROUNDS = (3, 1, 2, 2, 2, 2)  # dart rounds at sub-cell level 0, 1, ...
+_FIRST_FRACTION = 0.35       # share of the cells in the first round
 _BLOCK = 1 << 15             # elements per (darts x neighbours) block
 _MAX_ATTEMPTS = 64           # regeneration passes before giving up (never reached)
 
@@ -195,11 +199,17 @@ def toroidal_min_distances(points: np.ndarray) -> np.ndarray:
         raise ValueError("points must be finite")
     pts = pts - np.floor(pts)
     g = int(1.0 / d_hex(n))
-    if g < 3:  # n <= 10: neighbouring cells would not be distinct
-        d = _wrap_delta(pts[:, :, None, :] - pts[:, None, :, :])
-        d2 = (d * d).sum(axis=-1)
-        d2[:, np.arange(n), np.arange(n)] = np.inf
-        return np.sqrt(d2.min(axis=(1, 2)))
+    if g < 3 or n <= 48:  # few points: all pairs (the grid needs distinct neighbours)
+        out = np.empty(n_sets)
+        step = max(1, _BLOCK // (n * n))
+        diag = np.arange(n)
+        for i in range(0, n_sets, step):
+            p = pts[i:i + step]
+            d = _wrap_delta(p[:, :, None, :] - p[:, None, :, :])
+            d2 = (d * d).sum(axis=-1)
+            d2[:, diag, diag] = np.inf
+            out[i:i + step] = np.sqrt(d2.min(axis=(1, 2)))
+        return out
     p = pts.reshape(-1, 2)
     cell = np.minimum((p * g).astype(np.int64), g - 1)
     set_base = np.repeat(np.arange(n_sets) * (g * g), n)
@@ -273,10 +283,13 @@ class _Batch:
         self.px = np.full(size, _EMPTY, dtype=_F)
         self.py = np.full(size, _EMPTY, dtype=_F)
         self.key = np.full(size, np.inf)  # acceptance order: round + (1 - priority)
-        # Scratch grids: darts of the current round and their priorities.
+        # Scratch grids: darts of a round and their priorities. Priorities grow from
+        # round to round, so entries left over from earlier rounds never count as
+        # a higher-priority dart and the grids need no clearing.
         self.dx = np.full(size, _EMPTY, dtype=_F)
         self.dy = np.full(size, _EMPTY, dtype=_F)
-        self.dprio = np.full(size, -1.0, dtype=_F)
+        self.dprio = np.full(size, -1, dtype=np.int64)
+        self.next_prio = 0
         self.count = np.zeros(n_sets, dtype=np.int64)
         self.done = np.zeros(n_sets, dtype=bool)
         self.round = 0
@@ -338,6 +351,12 @@ class _Batch:
         sq = self.cells
         x0, y0 = self.cell_x, self.cell_y
         h = self.s
+        # First round on an empty grid: darts in a random subset of the cells. With
+        # darts in every cell most would be rejected by a neighbour of higher priority.
+        pick = np.flatnonzero(self.rng.random(len(sq), dtype=_F) < _F(_FIRST_FRACTION))
+        self._round(sq[pick], x0[pick], y0[pick], h)
+        keep = self.px[sq] == _EMPTY
+        sq, x0, y0 = sq[keep], x0[keep], y0[keep]
         for level, rounds in enumerate(_ROUNDS):
             if level > 0:
                 if len(sq) == 0:
@@ -412,10 +431,12 @@ class _Batch:
         hf = _F(h)
         x = x0 + hf * u[0]
         y = y0 + hf * u[1]
-        # Distinct priorities (a random order; exact in float32 below 2^24 darts).
-        prio = self.rng.permutation(m).astype(_F)
+        # Distinct priorities, a random order, all above those of earlier rounds.
+        prio = self.rng.permutation(m) + self.next_prio
+        base = self.next_prio
+        self.next_prio += m
         # 1. Drop darts closer than r to an existing point.
-        if self.round == 0:  # nothing accepted yet
+        if not self.count.any():  # nothing accepted yet
             idx = np.arange(m)
         else:
             idx = np.flatnonzero(~self._near(self.px, self.py, sq, x, y))
@@ -423,17 +444,14 @@ class _Batch:
             return
         c, x, y, prio = sq[idx], x[idx], y[idx], prio[idx]
         # 2. One dart per cell (the highest priority): they would collide.
+        #    (At level 0 there is one square per cell.)
         if h < self.s:
             np.maximum.at(self.dprio, c, prio)
             win = self.dprio[c] == prio
-            self.dprio[c] = -1.0
             c, x, y, prio = c[win], x[win], y[win], prio[win]
         # 3. Keep darts with no higher-priority dart closer than r (Luby).
-        grids = (self.dx, self.dy, self.dprio)
-        self._scatter(grids, c, x, y, prio)
+        self._scatter((self.dx, self.dy, self.dprio), c, x, y, prio)
         ok = ~self._near(self.dx, self.dy, c, x, y, prio)
-        empty = np.full(len(c), _EMPTY, dtype=_F)
-        self._scatter(grids, c, empty, empty, np.full(len(c), -1.0, dtype=_F))
         c, x, y, prio = c[ok], x[ok], y[ok], prio[ok]
         # 4. Accept, keeping at most n points per set (earliest in priority order).
         b = c // self.gp2
@@ -446,7 +464,7 @@ class _Batch:
             order = order[rank < room[sb]]
             c, x, y, prio, b = c[order], x[order], y[order], prio[order], b[order]
             added = np.bincount(b, minlength=self.n_sets)
-        self.key[c] = self.round + (1.0 - prio.astype(np.float64) / m)
+        self.key[c] = self.round + (1.0 - (prio - base) / m)
         self._scatter((self.px, self.py), c, x, y)
         self.count += added
         self.done |= self.count >= self.n
@@ -474,7 +492,8 @@ def generate(n: int, n_sets: int, seed: int = 0) -> np.ndarray:
     """``n_sets`` toroidal Poisson-disk sets of ``n`` points, ``(n_sets, n, 2)`` float64.
 
     Every set's toroidal minimum distance is verified to be at least
-    ``RHO_TARGET * d_hex(n)``. Deterministic in ``(n, n_sets, seed)``.
+    ``RHO_TARGET * d_hex(n)``; coordinates are float32 numbers in [0, 1), points
+    in acceptance order. Deterministic in ``(n, n_sets, seed)`` (``seed >= 0``).
     """
     _check_n(n)
     if n_sets < 0:
@@ -490,7 +509,7 @@ def generate(n: int, n_sets: int, seed: int = 0) -> np.ndarray:
             return out
         # Small sets fail (saturate below n points) up to ~20% of the time: throw
         # a few extra sets at once instead of paying for another pass.
-        extra = math.ceil(0.3 * len(todo)) + 2 if n < 128 else \
+        extra = math.ceil(0.2 * len(todo)) + 2 if n < 128 else \
             math.ceil(0.05 * len(todo)) + 1 if n < 512 else 0
         pts, ok = _generate_batch(n, len(todo) + extra, rng)
         ok[ok] = toroidal_min_distances(pts[ok]) >= threshold
