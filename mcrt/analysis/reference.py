@@ -1,22 +1,78 @@
-"""High-spp reference images with exact per-pixel statistics.
+"""High-spp reference images with exact per-pixel statistics, cached and resumable.
 
-A reference is rendered in passes, each with its own seed (independent
-patterns), every pass's per-pixel moments Chan-merged in float64 into the total
-(:mod:`mcrt.analysis.statistics`), so the estimate, its per-sample variance and
-standard error stay exact however many samples (beyond 2^32) are taken.
+A reference is rendered in *passes*. Pass ``i`` is one :func:`render_stats` call
+with its own seed :func:`pass_seed` ``(seed, i)``, so passes are independent
+patterns; each pass's per-pixel moments ``(n, mean, M2)`` are Chan-merged in
+float64 into the running total (:mod:`mcrt.analysis.statistics`). Counts are
+int64 and the moments are merged pairwise, so the estimate, the per-sample
+variance and the standard error stay exact however many samples are taken
+(beyond 2^32 in total; Mitsuba alone renders at most 2^32 samples per call and
+stores float16 films by default).
+
+Samples per pass
+    Some samplers round their sample count (``jittered``/``uniform_grid``/
+    ``stratified`` to squares, ``orthogonal`` to prime squares, ``ldsampler`` to
+    powers of 4, ``multijitter`` to products of near-equal factors). The pass
+    plan (:func:`plan_passes`) only uses counts the sampler accepts *unchanged*:
+    ``k`` passes of the largest accepted count not above the target (256, or
+    fewer so that a pass has at most :data:`LANE_BUDGET` lanes), then the
+    remainder split greedily into accepted counts. Only when the sampler accepts
+    no count small enough for the last remainder (``orthogonal`` below 4, or
+    ``ldsampler`` below 4) is the total rounded up; :attr:`PassPlan.spp` is then
+    the effective total, reported by :attr:`Reference.spp` and logged. Nothing
+    is ever rendered at a count other than the plan's (checked every pass).
+
+Cache and resume
+    The result is cached under ``<cache>/reference`` (:func:`mcrt.cache.cache_dir`)
+    by :func:`reference_key`, a SHA-256 of the scene's content (the XML, the
+    files it includes and the files it names with ``filename``), the ``-D``
+    parameters, sampler, seed, requested spp, the pass plan, the lane budget,
+    the Mitsuba / Dr.Jit / mcrt versions, the variant and :data:`CACHE_FORMAT`.
+    After every finished pass the running state (count, mean, M2, nonfinite,
+    passes done, seconds, key) is written atomically to ``<key>.partial.npz``;
+    the finished reference goes to ``<key>.npz``. A later call with the same
+    key returns a finished reference without rendering, or continues a partial
+    one from its next pass; because passes are seeded by index and merged in
+    order from bit-exact float64 state, the result is bit-identical to an
+    uninterrupted run. Files are validated on load (format, key, role, shapes,
+    dtypes, and that every pixel has exactly the samples of the passes done), so
+    a partial state is never taken for a finished one and a damaged file is
+    ignored, never trusted.
+
+Standard error
+    ``standard_error = sqrt(variance / n)`` assumes independent samples, which
+    holds exactly for the default ``independent`` sampler. For stratified or
+    low-discrepancy samplers the samples of one pass are negatively correlated,
+    so the true error of the mean is usually smaller: the reported value is then
+    a (typically conservative) estimate.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import re
+import time
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..cache import cache_dir
+from ..errors import McrtError, SamplerError
+from ..io.atomic import atomic_path
 from ..render.passes import render_stats
-from ..render.scene import load_scene, make_sampler
+from ..render.scene import check_sampler_name, load_scene, make_sampler
+from ..render.trace import film_grid_size
 from ..samplers._hash import hash_keys_int
 from .statistics import PixelStats
+
+log = logging.getLogger("mcrt.reference")
 
 #: Default total samples per pixel of a reference.
 DEFAULT_REFERENCE_SPP = 4096
@@ -24,10 +80,316 @@ DEFAULT_REFERENCE_SPP = 4096
 #: Default samples per pixel of one reference pass (one independent seed).
 DEFAULT_PASS_SPP = 256
 
+#: Largest wavefront (pixels x samples per pass) a pass traces in one kernel; the
+#: default pass size shrinks so that ``pixels * pass_spp`` stays within it.
+#: Larger user-chosen passes are split by :func:`render_stats` into sub-passes of
+#: at most this many lanes (which changes the samples, hence part of the key).
+LANE_BUDGET = 1 << 24
+
+#: Version of the cache files' layout and of the rendering recipe; bump it when
+#: either changes so that stale references are never reused.
+CACHE_FORMAT = 1
+
+#: Cache subdirectory.
+CACHE_NAME = "reference"
+
+
+# --------------------------------------------------------------------------- pass plan
+
+
+@dataclass(frozen=True)
+class PassPlan:
+    """How a reference's samples per pixel are split into passes.
+
+    ``full_passes`` passes of ``pass_spp`` samples, then one pass per entry of
+    ``tail``. Every count is one the sampler accepts unchanged.
+    """
+
+    requested_spp: int
+    pass_spp: int
+    full_passes: int
+    tail: tuple[int, ...] = ()
+
+    @property
+    def passes(self) -> int:
+        return self.full_passes + len(self.tail)
+
+    @property
+    def spp(self) -> int:
+        """Effective total samples per pixel (``requested_spp`` unless noted)."""
+        return self.pass_spp * self.full_passes + sum(self.tail)
+
+    def spp_of(self, index: int) -> int:
+        """Samples per pixel of pass ``index``."""
+        if not 0 <= index < self.passes:
+            raise IndexError(f"pass {index} of {self.passes}")
+        return self.pass_spp if index < self.full_passes else self.tail[index - self.full_passes]
+
+    def spp_before(self, index: int) -> int:
+        """Samples per pixel of passes ``0 .. index - 1``."""
+        full = min(index, self.full_passes)
+        return full * self.pass_spp + sum(self.tail[:max(0, index - self.full_passes)])
+
+    def describe(self) -> str:
+        parts = []
+        if self.full_passes:
+            parts.append(f"{self.full_passes} x {self.pass_spp}")
+        parts += [str(t) for t in self.tail]
+        return " + ".join(parts) + " spp"
+
+
+@contextlib.contextmanager
+def _quiet_samplers() -> Iterator[None]:
+    """Silence the rounding warnings samplers print while we probe their counts."""
+    import mitsuba as mi
+
+    logger = mi.logger()
+    level = logger.log_level()
+    ours = logging.getLogger("mcrt.samplers")
+    our_level = ours.level
+    logger.set_log_level(mi.LogLevel.Error)
+    ours.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.set_log_level(level)
+        ours.setLevel(our_level)
+
+
+def _sample_count(sampler: str, n: int, cache: dict[int, int]) -> int:
+    """The count ``sampler`` uses when asked for ``n`` (raises if it refuses ``n``)."""
+    if n not in cache:
+        cache[n] = make_sampler(sampler, n).sample_count()
+    return cache[n]
+
+
+def _largest_accepted(sampler: str, n: int, cache: dict[int, int]) -> int | None:
+    """Largest count ``<= n`` that ``sampler`` takes unchanged (None if there is none).
+
+    Samplers round *up* and monotonically (checked for every built-in and mcrt
+    sampler up to 1100), so the accepted counts are the values of the rounding
+    ``r`` and the answer is ``r(m)`` for the largest ``m`` with ``r(m) <= n``,
+    found by bisection in O(log n) probes.
+    """
+    if _sample_count(sampler, n, cache) == n:
+        return n
+    lo, hi = 0, n  # invariant: r(lo) <= n (lo = 0 meaning "none yet"), r(hi) > n
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _sample_count(sampler, mid, cache) <= n:
+            lo = mid
+        else:
+            hi = mid
+    if lo == 0:
+        return None
+    best = _sample_count(sampler, lo, cache)
+    if _sample_count(sampler, best, cache) != best:  # pragma: no cover - non-idempotent rounding
+        raise SamplerError(f"sampler {sampler!r} does not keep its own sample count {best}")
+    return best
+
+
+def _accepted_up_to(sampler: str, n: int, counts: dict[int, int],
+                    limit: int = 256) -> list[int]:
+    """The (at most ``limit`` largest) counts ``<= n`` the sampler takes unchanged,
+    descending."""
+    found: list[int] = []
+    while n >= 1 and len(found) < limit:
+        a = _largest_accepted(sampler, n, counts)
+        if a is None:
+            break
+        found.append(a)
+        n = a - 1
+    return found
+
+
+def _exact_split(sampler: str, rest: int, counts: dict[int, int],
+                 max_parts: int = 8) -> tuple[int, ...] | None:
+    """The fewest accepted counts (at most ``max_parts``) summing to ``rest``
+    exactly, largest first; None if there are none. Breadth-first over sums of 1,
+    2, ... parts (every integer is a sum of four squares, so square-only samplers
+    need at most 4 when 1 is accepted)."""
+    if rest == 0:
+        return ()
+    if _sample_count(sampler, rest, counts) == rest:
+        return (rest,)
+    coins = _accepted_up_to(sampler, rest, counts)
+    if not coins:
+        return None
+    layers = [np.zeros(rest + 1, bool)]
+    layers[0][0] = True
+    for _ in range(max_parts):
+        prev, nxt = layers[-1], np.zeros(rest + 1, bool)
+        for c in coins:
+            nxt[c:] |= prev[:rest + 1 - c]
+        layers.append(nxt)
+        if nxt[rest]:
+            parts, v = [], rest
+            for k in range(len(layers) - 1, 0, -1):  # backtrack, largest coin first
+                c = next(c for c in coins if c <= v and layers[k - 1][v - c])
+                parts.append(c)
+                v -= c
+            return tuple(sorted(parts, reverse=True))
+    return None
+
+
+def _greedy_split(sampler: str, rest: int, counts: dict[int, int]) -> tuple[int, ...]:
+    """Largest accepted parts first; the last part rounded up by the sampler when
+    it accepts nothing small enough (the total then exceeds ``rest``)."""
+    parts = []
+    while rest > 0:
+        part = _largest_accepted(sampler, rest, counts)
+        if part is None:
+            parts.append(_sample_count(sampler, rest, counts))
+            break
+        parts.append(part)
+        rest -= part
+    return tuple(parts)
+
+
+def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = None) -> PassPlan:
+    """Split ``spp`` samples per pixel into passes that ``sampler`` renders exactly.
+
+    ``spp_per_pass`` (default: 256, reduced so that ``pixels * pass_spp <=``
+    :data:`LANE_BUDGET`) is lowered to the largest count the sampler accepts.
+    """
+    check_sampler_name(sampler)
+    if spp < 1:
+        raise McrtError(f"a reference needs at least 1 sample per pixel, got {spp}")
+    if spp_per_pass is not None and spp_per_pass < 1:
+        raise McrtError(f"samples per pass must be at least 1, got {spp_per_pass}")
+    target = spp_per_pass or max(1, min(DEFAULT_PASS_SPP, LANE_BUDGET // max(1, pixels)))
+    target = min(target, spp)
+    counts: dict[int, int] = {}
+    with _quiet_samplers():
+        pass_spp = _largest_accepted(sampler, target, counts) \
+            or _sample_count(sampler, target, counts)
+        full, rest = divmod(spp, pass_spp)
+        tail = None
+        for drop in range(min(full, 3) + 1):  # fold up to 3 full passes into the tail
+            tail = _exact_split(sampler, rest + drop * pass_spp, counts)
+            if tail is not None:
+                full -= drop
+                break
+        if tail is None:
+            tail = _greedy_split(sampler, rest, counts)
+    plan = PassPlan(requested_spp=spp, pass_spp=pass_spp, full_passes=full, tail=tuple(tail))
+    if spp_per_pass is not None and pass_spp != min(spp_per_pass, spp):
+        log.info("%s takes %d samples per pixel per pass (requested %d)", sampler, pass_spp,
+                 spp_per_pass)
+    if plan.spp != spp:
+        log.warning("%s cannot render exactly %d samples per pixel: the reference uses %d (%s)",
+                    sampler, spp, plan.spp, plan.describe())
+    return plan
+
+
+# --------------------------------------------------------------------------- keys
+
+
+def pass_seed(seed: int, index: int) -> int:
+    """Seed of reference pass ``index``: hashed, so nearby user seeds never
+    share passes. For a fixed ``seed`` it is a bijection of ``index`` (a chain of
+    32-bit bijections), so no two passes of one reference share a seed."""
+    return hash_keys_int(seed, index, 0x5EF)
+
+
+_VAR = re.compile(r"\$(\w+)")
+
+
+def _substitute(text: str, values: dict[str, str]) -> str:
+    for _ in range(8):  # defaults may refer to other parameters ($width = $res)
+        new = _VAR.sub(lambda m: values.get(m.group(1), m.group(0)), text)
+        if new == text:
+            break
+        text = new
+    return text
+
+
+def _hash_scene_file(path: Path, params: dict[str, str], digest, seen: set[Path]) -> None:
+    """Feed ``path`` and the files it includes or names into ``digest``."""
+    path = path.resolve()
+    if path in seen:
+        return
+    seen.add(path)
+    data = path.read_bytes()
+    digest.update(b"file\0%d\0" % len(data) + data)
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError:
+        return  # Mitsuba will report it; the bytes are hashed anyway
+    values = {el.get("name", ""): el.get("value", "") for el in root.iter("default")}
+    values.update(params)
+    for el in root.iter():
+        if el.tag == "include":
+            name = el.get("filename")
+        elif el.get("name") == "filename":
+            name = el.get("value")
+        else:
+            continue
+        if not name:
+            continue
+        name = _substitute(name, values)
+        target = (path.parent / name) if not os.path.isabs(name) else Path(name)
+        digest.update(b"ref\0" + name.encode() + b"\0")
+        if not target.is_file():
+            digest.update(b"missing\0")
+        elif el.tag == "include" or target.suffix.lower() == ".xml":
+            _hash_scene_file(target, params, digest, seen)
+        else:
+            digest.update(hashlib.sha256(target.read_bytes()).digest())
+
+
+def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:
+    """SHA-256 of a scene's content: the XML, the XML files it includes and the
+    files it names (``<string name="filename" .../>``), resolved relative to the
+    scene with ``$params`` and ``<default>`` values substituted."""
+    digest = hashlib.sha256()
+    _hash_scene_file(Path(scene_path), dict(params or {}), digest, set())
+    return digest.hexdigest()
+
+
+def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: str, seed: int,
+                plan: PassPlan) -> dict:
+    """Everything a reference's bits depend on (see :func:`reference_key`)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from .. import __version__
+
+    return {
+        "format": CACHE_FORMAT,
+        "scene": scene_digest(scene_path, params),
+        "params": sorted((str(k), str(v)) for k, v in (params or {}).items()),
+        "sampler": sampler,
+        "seed": int(seed),
+        "spp": plan.requested_spp,
+        "plan": [plan.pass_spp, plan.full_passes, list(plan.tail)],
+        "lane_budget": LANE_BUDGET,
+        "variant": mi.variant(),
+        "versions": [mi.__version__, dr.__version__, __version__],
+    }
+
+
+def reference_key(scene_path: str | Path, params: dict[str, str] | None, sampler: str,
+                  seed: int, plan: PassPlan) -> str:
+    """Cache key: SHA-256 (hex, 32 digits) of :func:`key_payload` as canonical JSON."""
+    text = json.dumps(key_payload(scene_path, params, sampler, seed, plan), sort_keys=True,
+                      separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+# --------------------------------------------------------------------------- result
+
 
 @dataclass
 class Reference:
-    """A reference image: per-pixel estimate and its statistics (float64)."""
+    """A reference image: per-pixel estimate and its statistics (float64).
+
+    ``spp`` is the effective total samples per pixel (see :class:`PassPlan`);
+    ``seconds`` the wall time spent rendering and merging its passes (summed over
+    all sessions for a resumed or cached reference; cache writes excluded);
+    ``cached`` whether it came from the cache without rendering;
+    ``resumed_passes`` how many passes a partial state provided.
+    """
 
     stats: PixelStats
     spp: int
@@ -35,6 +397,10 @@ class Reference:
     seed: int
     passes: int
     seconds: float
+    key: str = ""
+    cached: bool = False
+    resumed_passes: int = 0
+    plan: PassPlan | None = None
 
     @property
     def mean(self) -> np.ndarray:
@@ -50,30 +416,211 @@ class Reference:
 
     @property
     def samples(self) -> int:
+        """Finite samples merged into the estimate (exact Python int)."""
         return self.stats.samples
 
+    @property
+    def drawn_samples(self) -> int:
+        """All samples traced, non-finite ones included (exact Python int)."""
+        return self.stats.samples + int(self.stats.nonfinite.sum())
 
-def pass_seed(seed: int, index: int) -> int:
-    """Seed of reference pass ``index``: hashed, so nearby user seeds never
-    share passes."""
-    return hash_keys_int(seed, index, 0x5EF)
+    @property
+    def samples_per_second(self) -> float:
+        return self.drawn_samples / self.seconds if self.seconds > 0 else float("inf")
+
+
+# --------------------------------------------------------------------------- cache files
+
+
+def cache_paths(key: str) -> tuple[Path, Path]:
+    """``(finished, partial)`` cache files of ``key``."""
+    directory = cache_dir(CACHE_NAME)
+    return directory / f"{key}.npz", directory / f"{key}.partial.npz"
+
+
+def save_state(path: Path, key: str, stats: PixelStats, passes_done: int, passes: int,
+               seconds: float, complete: bool) -> None:
+    """Write a reference's running state to ``path`` atomically (``.npz``, no pickle)."""
+    meta = {"format": CACHE_FORMAT, "key": key, "complete": bool(complete),
+            "passes_done": int(passes_done), "passes": int(passes), "seconds": float(seconds)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, meta=np.array(json.dumps(meta)),
+                 count=np.asarray(stats.count, np.int64), mean=np.asarray(stats.mean, np.float64),
+                 m2=np.asarray(stats.m2, np.float64),
+                 nonfinite=np.asarray(stats.nonfinite, np.int64))
+
+
+def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
+               complete: bool) -> tuple[PixelStats, int, float] | None:
+    """Read a state written by :func:`save_state`; ``(stats, passes_done, seconds)``
+    if it is a valid state of ``key`` in the expected role, else None.
+
+    Checked: format, key, role (``complete`` and passes done, so a partial state
+    is never returned as finished), array shapes and dtypes, and that every
+    pixel holds exactly the samples of the passes done.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            arrays = {name: data[name] for name in ("count", "mean", "m2", "nonfinite")}
+    except FileNotFoundError:
+        return None
+    except Exception as error:  # truncated, not an npz, missing member, bad JSON, ...
+        log.warning("ignoring unreadable reference cache file %s (%s)", path,
+                    type(error).__name__)
+        return None
+    done = meta.get("passes_done")
+    h, w = shape
+    ok = (meta.get("format") == CACHE_FORMAT and meta.get("key") == key
+          and meta.get("complete") is complete and meta.get("passes") == plan.passes
+          and isinstance(done, int)
+          and (done == plan.passes if complete else 0 < done < plan.passes)
+          and arrays["count"].shape == (h, w) and arrays["nonfinite"].shape == (h, w)
+          and arrays["mean"].shape == (h, w, 3) and arrays["m2"].shape == (h, w, 3)
+          and arrays["count"].dtype == np.int64 and arrays["nonfinite"].dtype == np.int64
+          and arrays["mean"].dtype == np.float64 and arrays["m2"].dtype == np.float64)
+    if ok:
+        ok = bool(np.all(arrays["count"] + arrays["nonfinite"] == plan.spp_before(done))
+                  and np.all(arrays["m2"] >= 0) and np.isfinite(arrays["mean"]).all())
+    if not ok:
+        log.warning("ignoring reference cache file %s: it does not match this reference", path)
+        return None
+    return PixelStats(**arrays), done, float(meta.get("seconds", 0.0))
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+def _progress_bar(plan: PassPlan, done: int, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=plan.passes, initial=done, unit="pass", desc="reference", leave=False,
+                dynamic_ncols=True)
 
 
 def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   spp: int = DEFAULT_REFERENCE_SPP, sampler: str = "independent",
                   seed: int = 0, spp_per_pass: int | None = None,
-                  progress: bool = False) -> Reference:
-    """Render a reference of ``scene_path`` with ``spp`` samples per pixel."""
+                  progress: bool = False, *, cache: bool = True,
+                  on_pass: Callable[[int, int], None] | None = None) -> Reference:
+    """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``.
+
+    ``params`` are the scene's ``$key`` parameters (the CLI's ``-D``). ``cache``
+    False neither reads nor writes the cache. ``on_pass(index, passes)`` runs
+    after pass ``index`` is merged and its state saved (a test hook; raising
+    there interrupts the reference, which the next call resumes). Raises
+    :class:`~mcrt.errors.McrtError` for bad arguments or scenes, before rendering.
+    """
+    params = dict(params or {})
+    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+        raise McrtError(f"a reference needs at least 1 sample per pixel, got {spp!r}")
+    if not 0 <= int(seed) < 2 ** 32:
+        raise McrtError(f"seed must be in [0, 2^32), got {seed}")
+    spp, seed = int(spp), int(seed)
+    check_sampler_name(sampler)
     scene = load_scene(scene_path, params)
-    per_pass = min(spp, spp_per_pass or DEFAULT_PASS_SPP)
-    passes = -(-spp // per_pass)
-    total = None
-    seconds = 0.0
-    for index in range(passes):
-        count = min(per_pass, spp - index * per_pass)
-        result = render_stats(scene, make_sampler(sampler, count), seed=pass_seed(seed, index),
-                              progress=progress)
-        total = result.stats if total is None else total.merge(result.stats)
-        seconds += result.seconds
-    return Reference(stats=total, spp=spp, sampler=sampler, seed=seed, passes=passes,
-                     seconds=seconds)
+    film = scene.sensors()[0].film()
+    grid = film_grid_size(film)
+    width, height = int(grid[0]), int(grid[1])
+    if not film.rfilter().is_box_filter():
+        log.info("the reference is box-binned (a sample counts for the pixel it was drawn in); "
+                 "this scene's film filters with %s", film.rfilter().class_name())
+    plan = plan_passes(sampler, spp, width * height, spp_per_pass)
+    key = reference_key(scene_path, params, sampler, seed, plan)
+    finished_path, partial_path = cache_paths(key)
+
+    def result(stats, seconds, cached=False, resumed=0):
+        return Reference(stats=stats, spp=plan.spp, sampler=sampler, seed=seed,
+                         passes=plan.passes, seconds=seconds, key=key, cached=cached,
+                         resumed_passes=resumed, plan=plan)
+
+    total, done, seconds = None, 0, 0.0
+    if cache:
+        found = load_state(finished_path, key, plan, (height, width), complete=True)
+        if found is not None:
+            return result(found[0], found[2], cached=True)
+        found = load_state(partial_path, key, plan, (height, width), complete=False)
+        if found is not None:
+            total, done, seconds = found
+            log.info("resuming reference %s after pass %d of %d", key, done, plan.passes)
+    resumed = done
+
+    bar = _progress_bar(plan, done, progress)
+    writable = cache
+    session_seconds, session_samples = 0.0, 0
+    try:
+        for index in range(done, plan.passes):
+            start = time.perf_counter()
+            count = plan.spp_of(index)
+            part = render_stats(scene, make_sampler(sampler, count), seed=pass_seed(seed, index),
+                                max_lanes=LANE_BUDGET)
+            if part.spp != count:  # the plan only uses counts the sampler keeps
+                raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
+                                   f"{index}, planned {count}")
+            total = part.stats if total is None else total.merge(part.stats)
+            elapsed = time.perf_counter() - start
+            seconds += elapsed
+            session_seconds += elapsed
+            session_samples += part.samples
+            last = index + 1 == plan.passes
+            if writable:
+                try:
+                    save_state(finished_path if last else partial_path, key, total, index + 1,
+                               plan.passes, seconds, complete=last)
+                    if last:
+                        with contextlib.suppress(OSError):
+                            partial_path.unlink()
+                except (McrtError, OSError) as error:
+                    log.warning("cannot write the reference cache (%s); continuing without it",
+                                error)
+                    writable = False
+            if bar is not None:
+                bar.set_postfix_str(f"{session_samples / session_seconds / 1e6:.2f} M samples/s",
+                                    refresh=False)
+                bar.update(1)
+            if on_pass is not None:
+                on_pass(index, plan.passes)
+    finally:
+        if bar is not None:
+            bar.close()
+    return result(total, seconds, resumed=resumed)
+
+
+# --------------------------------------------------------------------------- output
+
+
+def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
+    """EXR layers of a reference: ``rgb`` (mean), ``variance`` (per-sample),
+    ``stderr`` (of the mean), ``count`` (samples per pixel; float32 in the file,
+    exact up to 2^24 per pixel) and ``nonfinite`` if any sample was NaN/Inf."""
+    layers = {"rgb": ref.mean.astype(np.float32),
+              "variance": ref.variance.astype(np.float32),
+              "stderr": ref.standard_error.astype(np.float32),
+              "count": ref.stats.count.astype(np.float32)}
+    if ref.stats.nonfinite.any():
+        layers["nonfinite"] = ref.stats.nonfinite.astype(np.float32)
+    return layers
+
+
+def reference_metadata(ref: Reference, scene_path: str | Path,
+                       params: dict[str, str] | None) -> dict[str, str | int | float]:
+    """EXR metadata of a reference. Sample totals are exact Python ints
+    (``write_exr`` stores those beyond int32 as decimal strings)."""
+    from .. import __version__
+
+    plan = ref.plan
+    return {
+        "mcrt_version": __version__, "mcrt_kind": "reference",
+        "scene": str(scene_path),
+        "params": " ".join(f"{k}={v}" for k, v in (params or {}).items()),
+        "sampler": ref.sampler, "seed": ref.seed, "spp": ref.spp,
+        "requested_spp": plan.requested_spp if plan else ref.spp,
+        "passes": ref.passes, "pass_plan": plan.describe() if plan else "",
+        "samples": ref.drawn_samples, "finite_samples": ref.samples,
+        "nonfinite_samples": int(ref.stats.nonfinite.sum()),
+        "max_pixel_count": int(ref.stats.count.max()),
+        "cache_key": ref.key, "render_seconds": round(float(ref.seconds), 6),
+    }

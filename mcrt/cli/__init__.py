@@ -12,7 +12,7 @@ import logging
 import sys
 
 from ..errors import McrtError
-from . import demo_cmd, render_cmd
+from . import demo_cmd, reference_cmd, render_cmd
 
 
 class _Parser(argparse.ArgumentParser):
@@ -27,7 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars or notes")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     commands.required = True
-    for module in (render_cmd, demo_cmd):
+    for module in (render_cmd, demo_cmd, reference_cmd):
         module.add_parser(commands)
     return parser
 

@@ -232,9 +232,11 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
             on_pass(index, n_passes)
         s = trace(scene, sensor_obj, sampler, integrator, pixel, spp)
         rgb = mi.Color3f(s.rgb)
-        dr.eval(rgb)
         sampler.advance()
         sampler.schedule_state()
+        # One kernel for the samples and the sampler's next state: evaluating rgb
+        # first would trace every path a second time to compute the state later.
+        dr.eval(rgb)
         count, means, m2, bad = pass_moments(rgb, group)
         shape = (height, width)
         part = PixelStats(

@@ -527,13 +527,9 @@ _LOCK = threading.Lock()
 
 def cache_dir() -> Path:
     """Directory of the on-disk tables: ``<cache>/poisson`` (see the module docstring)."""
-    root = os.environ.get("MCRT_CACHE_DIR")
-    if root:
-        base = Path(root)
-    else:
-        xdg = os.environ.get("XDG_CACHE_HOME")
-        base = (Path(xdg) if xdg else Path.home() / ".cache") / "mcrt"
-    return base / "poisson"
+    from ..cache import cache_dir as shared_cache_dir  # lazy: this module also loads standalone
+
+    return shared_cache_dir("poisson")
 
 
 def cache_path(n: int) -> Path:
