@@ -5,6 +5,9 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# Small matrix products in the analysis tests run 10-30x slower with OpenBLAS's
+# threads competing for 2 cores with Dr.Jit's; one BLAS thread is fastest here.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import mitsuba as mi  # noqa: E402
 import pytest  # noqa: E402

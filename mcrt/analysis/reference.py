@@ -57,7 +57,7 @@ import os
 import re
 import time
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,7 +67,7 @@ from ..cache import cache_dir
 from ..errors import McrtError, SamplerError
 from ..io.atomic import atomic_path
 from ..render.passes import render_stats
-from ..render.scene import check_sampler_name, load_scene, make_sampler
+from ..render.scene import check_sampler_name, load_scene, make_sampler, quiet_sampler_warnings
 from ..render.trace import film_grid_size
 from ..samplers._hash import hash_keys_int
 from .statistics import PixelStats
@@ -136,24 +136,6 @@ class PassPlan:
             parts.append(f"{self.full_passes} x {self.pass_spp}")
         parts += [str(t) for t in self.tail]
         return " + ".join(parts) + " spp"
-
-
-@contextlib.contextmanager
-def _quiet_samplers() -> Iterator[None]:
-    """Silence the rounding warnings samplers print while we probe their counts."""
-    import mitsuba as mi
-
-    logger = mi.logger()
-    level = logger.log_level()
-    ours = logging.getLogger("mcrt.samplers")
-    our_level = ours.level
-    logger.set_log_level(mi.LogLevel.Error)
-    ours.setLevel(logging.ERROR)
-    try:
-        yield
-    finally:
-        logger.set_log_level(level)
-        ours.setLevel(our_level)
 
 
 def _sample_count(sampler: str, n: int, cache: dict[int, int]) -> int:
@@ -260,7 +242,7 @@ def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = 
     target = spp_per_pass or max(1, min(DEFAULT_PASS_SPP, LANE_BUDGET // max(1, pixels)))
     target = min(target, spp)
     counts: dict[int, int] = {}
-    with _quiet_samplers():
+    with quiet_sampler_warnings():
         pass_spp = _largest_accepted(sampler, target, counts) \
             or _sample_count(sampler, target, counts)
         full, rest = divmod(spp, pass_spp)

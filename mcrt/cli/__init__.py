@@ -12,7 +12,7 @@ import logging
 import sys
 
 from ..errors import McrtError
-from . import demo_cmd, reference_cmd, render_cmd
+from . import compare_cmd, demo_cmd, integrate_cmd, pattern_cmd, reference_cmd, render_cmd
 
 
 class _Parser(argparse.ArgumentParser):
@@ -27,7 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars or notes")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     commands.required = True
-    for module in (render_cmd, demo_cmd, reference_cmd):
+    for module in (render_cmd, demo_cmd, pattern_cmd, integrate_cmd, reference_cmd, compare_cmd):
         module.add_parser(commands)
     return parser
 
@@ -53,6 +53,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("mcrt: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # e.g. `mcrt ... | head`: the reader left, nothing to report
+        _silence_stdout()
+        return 141
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so Python's exit-time flush cannot fail again."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import mitsuba as mi
@@ -76,6 +79,23 @@ def make_sampler(name: str, spp: int, seed: int = 0, **params) -> mi.Sampler:
 _BUILTIN_CLASSES = {"IndependentSampler": "independent", "StratifiedSampler": "stratified",
                     "MultijitterSampler": "multijitter", "OrthogonalSampler": "orthogonal",
                     "LowDiscrepancySampler": "ldsampler"}
+
+
+@contextmanager
+def quiet_sampler_warnings() -> Iterator[None]:
+    """Silence the "rounding the sample count" warnings of Mitsuba's and mcrt's
+    samplers, for tools that create many samplers and report the effective
+    counts themselves."""
+    level = mi.log_level()
+    logger = logging.getLogger("mcrt.samplers")
+    old = logger.level
+    mi.set_log_level(mi.LogLevel.Error)
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        mi.set_log_level(level)
+        logger.setLevel(old)
 
 
 def sampler_name(sampler: mi.Sampler) -> str:

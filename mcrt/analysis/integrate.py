@@ -1,0 +1,348 @@
+"""Monte-Carlo integration bench: how fast does each sampler's error shrink?
+
+The lecture's experiment, run through the samplers' real point sets: estimate
+an integral over the unit square with ``N`` samples of one pixel, as the renderer
+would, and repeat over many pixels. Pixels are decorrelated by the samplers'
+per-pixel seeding, so each pixel is an independent *trial* of the estimator
+
+    I_hat = (1/N) sum_j f(x_j),     x_j = the N film samples of the pixel
+
+and the trials give its mean squared error ``MSE = mean_p (I_hat_p - I)^2``
+(bias included). Integrands (``INTEGRANDS``) have exact values:
+
+* ``pi``: the indicator of the quarter disc ``x^2 + y^2 <= 1`` times 4, whose
+  integral is pi (the lecture's dart-throwing estimate of pi);
+* ``disk``: the indicator of the disc of radius 0.4 around (0.5, 0.5), integral
+  ``0.16 pi`` (a discontinuity crossing the pixel, like a geometric edge);
+* ``gaussian``: ``exp(-|x - c|^2 / (2 s^2))`` with ``c = (0.5, 0.5)`` and
+  ``s = 0.2``; integral ``(s sqrt(2 pi) erf(1 / (2 sqrt(2) s)))^2`` (smooth).
+
+Known rates for the MSE (the variance, for unbiased samplers): independent
+samples ``N^-1`` for any square-integrable ``f``; jittered (stratified)
+sampling ``N^-1.5`` for an indicator with a smooth boundary and ``N^-2`` for a
+smooth ``f`` in 2D (``N^-(1 + 2/d)``) [Mitchell96]_ [Owen13]_.
+
+Uncertainty
+===========
+
+With ``P`` independent trials, ``MSE_hat = mean(e^2)``, so by the delta method
+``Var[ln MSE_hat] ~ Var[e^2] / (P MSE^2) = (kurt - 1) / P`` with ``kurt`` the
+kurtosis of the error ``E[e^4] / E[e^2]^2`` (3 for Gaussian errors, giving the
+familiar ``sqrt(2 / P)``). :func:`mse_summary` estimates it from the sample
+moments, so heavy-tailed or discrete errors (an indicator at small ``N``) are
+not under-reported. The slope of ``ln MSE`` against ``ln N`` is fitted by
+weighted least squares with these variances (:func:`fit_slope`), and its
+standard error follows. Work is bounded by capping the points per ``N``
+(:data:`POINT_BUDGET`): large ``N`` get fewer trials, so their ``ln MSE`` has a
+larger standard error (``sqrt(2 / P)``: 0.044 at 1024 trials, 0.18 at 64) and
+less weight in the fit.
+
+References
+==========
+
+.. [Mitchell96] D. P. Mitchell. "Consequences of stratified sampling in
+   graphics". SIGGRAPH 1996 (edge-type integrands: N^-1.5 for stratified 2D).
+.. [Owen13] A. B. Owen. *Monte Carlo theory, methods and examples*, ch. 10
+   (stratification: variance O(N^(-1-2/d)) for smooth integrands).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import McrtError
+from ..render.scene import mitsuba_message
+from ..samplers.points import point_sets
+from ..render.scene import quiet_sampler_warnings
+
+#: Default trials (pixels) per sample count.
+DEFAULT_TRIALS = 1024
+
+#: Default cap on points (trials x N) per sample count: 2^22 points, 32 MB as float32 pairs.
+POINT_BUDGET = 1 << 22
+
+#: Default sample counts: 16 ... 65536 by powers of 4.
+DEFAULT_COUNTS = tuple(4 ** e for e in range(2, 9))
+
+
+@dataclass(frozen=True)
+class Integrand:
+    """A function on the unit square with a known integral."""
+
+    name: str
+    description: str
+    exact: float
+    function: Callable[[np.ndarray, np.ndarray], np.ndarray]  # f(x, y), float64 arrays
+
+    def estimates(self, points: np.ndarray) -> np.ndarray:
+        """Per-trial estimates ``mean_j f(x_j)`` of points ``(P, N, 2)`` -> ``(P,)``."""
+        x = points[..., 0].astype(np.float64)
+        y = points[..., 1].astype(np.float64)
+        return np.mean(self.function(x, y), axis=-1)
+
+
+def _quarter_disc(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.where(x * x + y * y <= 1.0, 4.0, 0.0)
+
+
+DISK_CENTRE = (0.5, 0.5)
+DISK_RADIUS = 0.4
+
+
+def _disk(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    dx, dy = x - DISK_CENTRE[0], y - DISK_CENTRE[1]
+    return (dx * dx + dy * dy <= DISK_RADIUS ** 2).astype(np.float64)
+
+
+GAUSSIAN_SIGMA = 0.2
+
+
+def _gaussian(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.exp(-((x - 0.5) ** 2 + (y - 0.5) ** 2) / (2.0 * GAUSSIAN_SIGMA ** 2))
+
+
+def _gaussian_integral(sigma: float) -> float:
+    one_d = sigma * math.sqrt(2.0 * math.pi) * math.erf(0.5 / (math.sqrt(2.0) * sigma))
+    return one_d * one_d
+
+
+INTEGRANDS: dict[str, Integrand] = {
+    "pi": Integrand("pi", "4 x indicator of the quarter disc x^2 + y^2 <= 1 (estimates pi)",
+                    math.pi, _quarter_disc),
+    "disk": Integrand("disk", f"indicator of the disc r = {DISK_RADIUS} around {DISK_CENTRE}",
+                      math.pi * DISK_RADIUS ** 2, _disk),
+    "gaussian": Integrand("gaussian", f"exp(-|x - c|^2 / (2 s^2)), c = (0.5, 0.5), "
+                          f"s = {GAUSSIAN_SIGMA}", _gaussian_integral(GAUSSIAN_SIGMA), _gaussian),
+}
+
+
+# --------------------------------------------------------------------------- statistics
+
+@dataclass(frozen=True)
+class MSESummary:
+    """Mean squared error over independent trials and its uncertainty."""
+
+    mse: float
+    se_log: float     # standard error of ln(mse) (delta method, sample kurtosis)
+    bias: float       # mean error
+    trials: int
+
+    @property
+    def rmse(self) -> float:
+        return math.sqrt(self.mse)
+
+
+def mse_summary(errors: np.ndarray) -> MSESummary:
+    """MSE of ``errors`` (one per independent trial) and the standard error of its log.
+
+    ``se_log = sqrt(Var[e^2] / P) / MSE`` (delta method), with ``Var[e^2]``
+    estimated from the trials; ``sqrt(2 / P)`` for Gaussian errors. It is 0 for
+    a deterministic estimator (identical errors), whose MSE is exact.
+    """
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    p = e.size
+    if p < 2:
+        raise ValueError("mse_summary needs at least two trials")
+    sq = e * e
+    mse = float(np.mean(sq))
+    if mse == 0.0:
+        se = 0.0
+    else:
+        se = float(np.std(sq, ddof=1) / math.sqrt(p) / mse)
+    return MSESummary(mse=mse, se_log=se, bias=float(np.mean(e)), trials=p)
+
+
+@dataclass(frozen=True)
+class SlopeFit:
+    """``ln MSE = intercept + slope ln N``, weighted least squares."""
+
+    slope: float
+    stderr: float
+    intercept: float
+    points: int
+    #: Weighted residual sum of squares per degree of freedom: ~1 when a power law
+    #: fits within the stated errors, >> 1 when the curve bends (pre-asymptotic
+    #: range, error floors); nan for unweighted fits or two points.
+    chi2_dof: float = math.nan
+
+    @property
+    def stderr_scaled(self) -> float:
+        """``stderr`` times ``sqrt(chi2_dof)`` when the points scatter about the line
+        more than their errors allow (``chi2_dof > 1``): the slope's uncertainty
+        including the misfit of the power law (as ``scipy.optimize.curve_fit``
+        does with ``absolute_sigma=False``)."""
+        if self.chi2_dof == self.chi2_dof and self.chi2_dof > 1.0:
+            return self.stderr * math.sqrt(self.chi2_dof)
+        return self.stderr
+
+    def mse_at(self, n: float) -> float:
+        return math.exp(self.intercept + self.slope * math.log(n))
+
+
+#: Floor on the standard error of ln(MSE) in the fit (deterministic samplers
+#: have se 0; the floor keeps their weights finite and equal).
+SE_FLOOR = 1e-3
+
+
+def fit_slope(n: Sequence[float], mse: Sequence[float], se_log: Sequence[float] | None = None
+              ) -> SlopeFit:
+    """Weighted least-squares slope of ``ln mse`` against ``ln n``.
+
+    Weights ``1 / se_log^2`` (floored at :data:`SE_FLOOR`); unweighted if
+    ``se_log`` is None. ``stderr`` is the slope's standard error from the given
+    variances (``sqrt(1 / sum w (x - x_w)^2)``), i.e. it assumes the ``ln MSE``
+    values are independent with those standard errors and that a power law holds;
+    ``chi2_dof`` checks the latter. Unweighted fits use the residual variance
+    instead. Points with ``mse <= 0`` are skipped.
+    """
+    n = np.asarray(n, dtype=np.float64)
+    mse = np.asarray(mse, dtype=np.float64)
+    keep = (mse > 0) & (n > 0)
+    if np.count_nonzero(keep) < 2:
+        return SlopeFit(math.nan, math.nan, math.nan, int(np.count_nonzero(keep)))
+    x, y = np.log(n[keep]), np.log(mse[keep])
+    if se_log is None:
+        w = np.ones_like(x)
+    else:
+        w = 1.0 / np.maximum(np.asarray(se_log, dtype=np.float64)[keep], SE_FLOOR) ** 2
+    xm = np.sum(w * x) / np.sum(w)
+    ym = np.sum(w * y) / np.sum(w)
+    sxx = np.sum(w * (x - xm) ** 2)
+    slope = float(np.sum(w * (x - xm) * (y - ym)) / sxx)
+    intercept = float(ym - slope * xm)
+    dof = x.size - 2
+    resid = y - (intercept + slope * x)
+    chi2_dof = math.nan
+    if se_log is None:
+        stderr = float(math.sqrt(np.sum(resid ** 2) / dof / sxx)) if dof > 0 else math.nan
+    else:
+        stderr = float(math.sqrt(1.0 / sxx))
+        if dof > 0:
+            chi2_dof = float(np.sum(w * resid ** 2) / dof)
+    return SlopeFit(slope=slope, stderr=stderr, intercept=intercept, points=int(x.size),
+                    chi2_dof=chi2_dof)
+
+
+# --------------------------------------------------------------------------- the bench
+
+@dataclass
+class ConvergencePoint:
+    """Results of one sampler at one sample count for one integrand."""
+
+    sampler: str
+    integrand: str
+    n_requested: int
+    n: int                 # effective samples per trial (after the sampler's rounding)
+    trials: int
+    estimates: np.ndarray  # (trials,)
+    summary: MSESummary
+    seconds: float         # generating the points + evaluating all integrands, warm
+    exact: float
+
+    @property
+    def ns_per_sample(self) -> float:
+        return self.seconds / (self.n * self.trials) * 1e9
+
+    @property
+    def deterministic(self) -> bool:
+        """Every trial gave the same estimate (up to summation-order rounding), as for
+        ``uniform_grid``: the MSE is then a squared bias with no sampling error."""
+        return float(np.ptp(self.estimates)) <= 1e-12 * max(1.0, abs(self.exact))
+
+
+@dataclass
+class Convergence:
+    """All sample counts of one sampler for one integrand, with the fitted slope."""
+
+    sampler: str
+    integrand: str
+    points: list[ConvergencePoint] = field(default_factory=list)
+    skipped: list[tuple[int, str]] = field(default_factory=list)  # (n, reason)
+
+    @property
+    def deterministic(self) -> bool:
+        return bool(self.points) and all(p.deterministic for p in self.points)
+
+    def fit(self, min_n: int = 1) -> SlopeFit:
+        """Slope over the counts ``>= min_n``: weighted by the MSE's standard errors,
+        or, for a deterministic sampler (no sampling error), an unweighted fit whose
+        standard error describes the scatter about the line."""
+        sel = [p for p in self.points if p.n >= min_n]
+        se = None if self.deterministic else [p.summary.se_log for p in sel]
+        return fit_slope([p.n for p in sel], [p.summary.mse for p in sel], se)
+
+
+def trials_for(n: int, max_trials: int = DEFAULT_TRIALS, budget: int = POINT_BUDGET) -> int:
+    """Trials at ``n`` samples: ``max_trials``, fewer if ``trials x n`` exceeds ``budget``
+    (at least 16, so the MSE still has a usable uncertainty)."""
+    return max(16, min(max_trials, budget // max(n, 1)))
+
+
+def effective_count(sampler: str, n: int, **params) -> int:
+    """Samples per pixel ``sampler`` actually uses when asked for ``n``."""
+    with quiet_sampler_warnings():
+        return mi.load_dict({"type": sampler, "sample_count": int(n), **params}).sample_count()
+
+
+def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[int] = DEFAULT_COUNTS,
+                    max_trials: int = DEFAULT_TRIALS, budget: int = POINT_BUDGET, seed: int = 0,
+                    timed: bool = True, progress: Callable[[], None] | None = None,
+                    **params) -> dict[str, Convergence]:
+    """Run the bench for one sampler: every count, every integrand, the same points.
+
+    For each requested count ``n`` the trials are pixels ``0 .. P-1`` with
+    ``P = trials_for(n_eff, max_trials, budget)``; their film points
+    (dimension 0) come from :func:`~mcrt.samplers.points.point_sets` with seed
+    ``seed + i`` (mod 2^32) for the ``i``-th count, so different counts use
+    unrelated points and their ``ln MSE`` are independent (as :func:`fit_slope`
+    assumes). With ``timed``, the same call is made once before timing (kernel
+    compilation, Poisson tables), then the timed call runs between
+    ``dr.sync_thread()`` barriers and includes evaluating the integrands.
+    Counts the sampler cannot produce (e.g. ``poisson_disk`` above its table
+    size) are recorded in ``skipped``. ``progress()`` is called after each count.
+    """
+    names = list(integrands)
+    unknown = [name for name in names if name not in INTEGRANDS]
+    if unknown:
+        raise McrtError(f"unknown integrand {unknown[0]!r}; choose one of: {', '.join(INTEGRANDS)}")
+    results = {name: Convergence(sampler, name) for name in names}
+    for index, n_req in enumerate(counts):
+        count_seed = (seed + index) % (1 << 32)  # fresh points per count: independent ln MSE
+        try:
+            n = effective_count(sampler, n_req, **params)
+        except Exception as error:  # the sampler refuses this count
+            reason = mitsuba_message(error)
+            for res in results.values():
+                res.skipped.append((int(n_req), reason))
+            if progress is not None:
+                progress()
+            continue
+        trials = trials_for(n, max_trials, budget)
+        with quiet_sampler_warnings():
+            if timed:
+                point_sets(sampler, trials, n_req, seed=count_seed, **params)  # warm-up
+                dr.sync_thread()
+            start = time.perf_counter()
+            points = point_sets(sampler, trials, n_req, seed=count_seed, **params)
+            estimates = {name: INTEGRANDS[name].estimates(points) for name in names}
+            dr.sync_thread()
+            seconds = time.perf_counter() - start
+        if points.shape[1] != n:
+            raise RuntimeError(f"{sampler}: expected {n} samples per pixel, got {points.shape[1]}")
+        for name in names:
+            integrand = INTEGRANDS[name]
+            est = estimates[name]
+            results[name].points.append(ConvergencePoint(
+                sampler=sampler, integrand=name, n_requested=int(n_req), n=n, trials=trials,
+                estimates=est, summary=mse_summary(est - integrand.exact), seconds=seconds,
+                exact=integrand.exact))
+        if progress is not None:
+            progress()
+    return results

@@ -1,0 +1,175 @@
+"""``mcrt integrate``: the lecture's Monte-Carlo integration bench, per sampler."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_convergence
+from ..errors import McrtError
+from ..io.atomic import atomic_path
+from ..render.scene import check_sampler_name
+from ._common import ensure_writable_dir, non_negative_int, positive_int
+
+DEFAULT_SAMPLERS = ("independent", "jittered", "poisson_disk")
+
+#: Published MSE rates, for the printed comparison (None: no single rate).
+EXPECTED_SLOPES = {
+    "independent": {"pi": -1.0, "disk": -1.0, "gaussian": -1.0},
+    "jittered": {"pi": -1.5, "disk": -1.5, "gaussian": -2.0},
+    "stratified": {"pi": -1.5, "disk": -1.5, "gaussian": -2.0},
+}
+
+#: Largest trial count accepted (Mitsuba's samplers need pixel indices < 2^16).
+MAX_TRIALS = 1 << 16
+
+
+def add_parser(commands) -> None:
+    p = commands.add_parser(
+        "integrate", help="Monte-Carlo integration bench: error vs N per sampler",
+        description="Estimates an integral over the unit square with N samples of one pixel, "
+                    "for N = MIN, 4 MIN, ..., <= MAX; many pixels are independent trials, "
+                    "giving the MSE and its uncertainty. Prints a table and the fitted slope "
+                    "of MSE against N per sampler, and writes integrate_<INTEGRAND>.png/.csv/"
+                    ".json to DIR. pi: 4 x quarter-disc indicator (estimates pi); disk: "
+                    "indicator of a disc (an edge); gaussian: a smooth bump.")
+    p.add_argument("integrand", choices=tuple(INTEGRANDS), metavar="INTEGRAND",
+                   help=f"one of {', '.join(INTEGRANDS)}")
+    p.add_argument("--sampler", default=",".join(DEFAULT_SAMPLERS), metavar="NAME[,NAME...]",
+                   help="comma-separated samplers (default %(default)s)")
+    p.add_argument("--min-n", type=positive_int, default=16, metavar="N",
+                   help="smallest sample count (default 16)")
+    p.add_argument("--max-n", type=positive_int, default=65536, metavar="N",
+                   help="largest sample count (default 65536)")
+    p.add_argument("--trials", type=positive_int, default=DEFAULT_TRIALS, metavar="P",
+                   help=f"pixels (independent trials) per N (default {DEFAULT_TRIALS}); fewer "
+                        "at large N, see --budget")
+    p.add_argument("--budget", type=positive_int, default=POINT_BUDGET, metavar="POINTS",
+                   help=f"at most this many points per N and sampler (default {POINT_BUDGET}; "
+                        "trials = min(P, POINTS / N), at least 16)")
+    p.add_argument("--seed", type=non_negative_int, default=0, metavar="S", help="seed (default 0)")
+    p.add_argument("-o", "--output", metavar="DIR",
+                   help="output directory (default out/integrate_<INTEGRAND>)")
+    p.set_defaults(run=run)
+
+
+def sample_counts(min_n: int, max_n: int) -> list[int]:
+    """``min_n * 4^i`` up to ``max_n``."""
+    counts, n = [], min_n
+    while n <= max_n:
+        counts.append(n)
+        n *= 4
+    return counts
+
+
+def run(args: argparse.Namespace) -> int:
+    samplers = [check_sampler_name(s.strip()) for s in args.sampler.split(",") if s.strip()]
+    if not samplers:
+        raise McrtError("--sampler: give at least one sampler")
+    if len(set(samplers)) != len(samplers):
+        raise McrtError("--sampler: a sampler is listed twice")
+    if args.min_n > args.max_n:
+        raise McrtError(f"--min-n ({args.min_n}) is larger than --max-n ({args.max_n})")
+    if args.max_n > 1 << 20:
+        raise McrtError(f"--max-n: at most {1 << 20}, got {args.max_n}")
+    if args.trials < 2 or args.trials > MAX_TRIALS:
+        raise McrtError(f"--trials: between 2 and {MAX_TRIALS}, got {args.trials}")
+    counts = sample_counts(args.min_n, args.max_n)
+    out = ensure_writable_dir(Path(args.output or f"out/integrate_{args.integrand}"))
+    integrand = INTEGRANDS[args.integrand]
+
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+        bar = tqdm(total=len(counts) * len(samplers), unit="N", desc="integrate", leave=False,
+                   dynamic_ncols=True)
+    results = {}
+    try:
+        for name in samplers:
+            if bar is not None:
+                bar.set_postfix_str(name)
+            results[name] = run_convergence(
+                name, [args.integrand], counts, max_trials=args.trials, budget=args.budget,
+                seed=args.seed, timed=True, progress=bar.update if bar else None)[args.integrand]
+    finally:
+        if bar is not None:
+            bar.close()
+
+    _print_table(integrand, results)
+    _write_outputs(out, args, integrand, results)
+    return 0
+
+
+def _print_table(integrand, results) -> None:
+    print(f"integrand {integrand.name}: {integrand.description}; exact {integrand.exact:.12g}")
+    print("estimate and |error|: pixel 0 (one run of the estimator); RMSE over all trials "
+          "(+- relative standard error of the MSE)")
+    header = (f"{'sampler':13s} {'N':>6s} {'trials':>6s} {'estimate':>12s} {'|error|':>10s} "
+              f"{'RMSE':>10s} {'+-MSE':>6s} {'time ms':>8s} {'ns/sample':>9s}")
+    print(header)
+    for name, conv in results.items():
+        for p in conv.points:
+            err = abs(float(p.estimates[0]) - p.exact)
+            print(f"{name:13s} {p.n:6d} {p.trials:6d} {float(p.estimates[0]):12.8f} {err:10.3e} "
+                  f"{p.summary.rmse:10.3e} {100 * p.summary.se_log:5.1f}% "
+                  f"{1e3 * p.seconds:8.2f} {p.ns_per_sample:9.2f}")
+        for n, reason in conv.skipped:
+            print(f"{name:13s} {n:6d}  skipped: {reason}")
+    print("fitted slope of ln MSE against ln N (weighted least squares; the RMSE slope is half "
+          "of it); +- is its standard error, scaled by sqrt(chi2/dof) when the MSE scatters "
+          "about a power law more than its own errors allow (chi2/dof > 1)")
+    for name, conv in results.items():
+        fit = conv.fit()
+        if fit.points < 2:
+            print(f"  {name:13s} MSE slope n/a (fewer than two sample counts)")
+            continue
+        expected = EXPECTED_SLOPES.get(name, {}).get(integrand.name)
+        note = f"  published rate {expected:g}" if expected is not None else ""
+        if conv.deterministic:
+            note += "  (deterministic: every trial gives the same estimate; +- is the scatter)"
+            chi2 = ""
+        else:
+            chi2 = f"  chi2/dof {fit.chi2_dof:5.1f}" if fit.chi2_dof == fit.chi2_dof else ""
+        print(f"  {name:13s} MSE slope {fit.slope:+.3f} +- {fit.stderr_scaled:.3f}{chi2}{note}")
+
+
+def _write_outputs(out: Path, args, integrand, results) -> None:
+    from ..analysis import plots
+
+    stem = out / f"integrate_{integrand.name}"
+    rows = []
+    for name, conv in results.items():
+        for p in conv.points:
+            rows.append({"sampler": name, "n_requested": p.n_requested, "n": p.n,
+                         "trials": p.trials, "estimate_pixel0": float(p.estimates[0]),
+                         "mean_estimate": float(p.estimates.mean()), "exact": p.exact,
+                         "mse": p.summary.mse, "rmse": p.summary.rmse,
+                         "se_log_mse": p.summary.se_log, "bias": p.summary.bias,
+                         "seconds": p.seconds, "ns_per_sample": p.ns_per_sample})
+    with atomic_path(stem.with_suffix(".csv")) as tmp:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["sampler"])
+            writer.writeheader()
+            writer.writerows(rows)
+    slopes = {}
+    for name, conv in results.items():
+        fit = conv.fit()
+        slopes[name] = {"slope": fit.slope, "stderr": fit.stderr,
+                        "stderr_scaled": fit.stderr_scaled, "points": fit.points,
+                        "chi2_dof": fit.chi2_dof, "deterministic": conv.deterministic,
+                        "skipped": [{"n": n, "reason": r} for n, r in conv.skipped]}
+    summary = {"integrand": integrand.name, "exact": integrand.exact, "seed": args.seed,
+               "budget": args.budget, "max_trials": args.trials, "slopes": slopes}
+    with atomic_path(stem.with_suffix(".json")) as tmp:
+        Path(tmp).write_text(json.dumps(summary, indent=2) + "\n")
+
+    fig = plots.new_figure(6.0, 4.5)
+    series = [(f"{name} ({conv.fit().slope:+.2f})", [p.n for p in conv.points],
+               [p.summary.mse for p in conv.points], [p.summary.se_log for p in conv.points])
+              for name, conv in results.items() if conv.points]
+    plots.plot_convergence(fig.add_subplot(), series,
+                           title=f"MSE of the {integrand.name} estimate (slope in legend)")
+    plots.save_figure(fig, stem.with_suffix(".png"))
+    print(f"wrote {stem.name}.png, .csv and .json to {out}")
