@@ -1,8 +1,10 @@
 """mcrt: a distribution ray tracer for studying sampling, built on Mitsuba 3.
 
 Importing the package activates the ``llvm_ad_rgb`` variant when none is active
-(after checking that Dr.Jit has a usable libLLVM) and registers mcrt's sampler
-plugins, so ``mi.load_dict({'type': 'jittered', ...})`` works right away.
+(after checking that Dr.Jit has a usable libLLVM) and registers mcrt's plugins
+(samplers ``uniform_grid``, ``jittered``, ``poisson_disk``; integrator
+``distribution``), so ``mi.load_dict({'type': 'jittered', ...})``
+works right away.
 Call :func:`register` again after switching variants.
 """
 
@@ -16,12 +18,14 @@ __version__ = "0.1.0"
 initialise()
 
 from . import samplers  # noqa: E402  (needs an active variant)
+from .render import distribution  # noqa: E402
 
 
 def register() -> None:
     """Register mcrt's plugins with the active Mitsuba variant."""
     ensure_variant()
     samplers.register()
+    distribution.register()
 
 
 register()

@@ -67,7 +67,8 @@ from ..cache import cache_dir
 from ..errors import McrtError, SamplerError
 from ..io.atomic import atomic_path
 from ..render.passes import render_stats
-from ..render.scene import check_sampler_name, load_scene, make_sampler, quiet_sampler_warnings
+from ..render.plan import plan_scene
+from ..render.scene import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..render.trace import film_grid_size
 from ..samplers._hash import hash_keys_int
 from .statistics import PixelStats
@@ -503,7 +504,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
         raise McrtError(f"seed must be in [0, 2^32), got {seed}")
     spp, seed = int(spp), int(seed)
     check_sampler_name(sampler)
-    scene = load_scene(scene_path, params)
+    planned = plan_scene(scene_path, params)  # the scene `mcrt render` renders (motion too)
+    scene = planned.scene
     film = scene.sensors()[0].film()
     grid = film_grid_size(film)
     width, height = int(grid[0]), int(grid[1])
@@ -537,8 +539,10 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
         for index in range(done, plan.passes):
             start = time.perf_counter()
             count = plan.spp_of(index)
-            part = render_stats(scene, make_sampler(sampler, count), seed=pass_seed(seed, index),
-                                max_lanes=LANE_BUDGET)
+            pass_sampler = make_sampler(sampler, count)
+            subframes, move = planned.schedule(pass_sampler, count, pass_seed(seed, index))
+            part = render_stats(scene, pass_sampler, seed=pass_seed(seed, index),
+                                max_lanes=LANE_BUDGET, passes=subframes, on_pass=move)
             if part.spp != count:  # the plan only uses counts the sampler keeps
                 raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
                                    f"{index}, planned {count}")

@@ -344,12 +344,13 @@ def check_config(config: StudyConfig) -> None:
     """Load every scene and make every sampler, raising a one-line error on the
     first failure; fills ``config.effective_spp``."""
     from ..render.passes import sampling_integrator
-    from ..render.scene import load_scene, make_sampler, quiet_sampler_warnings
+    from ..render.plan import plan_scene
+    from ..render.scene import make_sampler, quiet_sampler_warnings
     from ..render.trace import film_grid_size
 
     for spec in config.scenes:
         try:
-            scene = load_scene(spec.path, spec.params)
+            scene = plan_scene(spec.path, spec.params).scene
         except McrtError as error:
             raise ConfigError(f"scene {spec.name!r}: {error}") from None
         try:
@@ -485,7 +486,8 @@ class _Progress:
 def run_study(config: StudyConfig, progress: bool = False) -> StudyResult:
     """Run every cell of a validated study; see the module doc for what is measured."""
     from ..render.passes import render_film
-    from ..render.scene import load_scene, make_sampler, quiet_sampler_warnings
+    from ..render.plan import plan_scene
+    from ..render.scene import make_sampler, quiet_sampler_warnings
     from .reference import get_reference
 
     if not config.effective_spp:
@@ -520,21 +522,27 @@ def run_study(config: StudyConfig, progress: bool = False) -> StudyResult:
                 seconds=float(ref.seconds), noise_floor=floor, rel_noise_floor=rel_floor,
                 width=int(width), height=int(height), cached=bool(getattr(ref, "cached", False)))
             reference_images[spec.name] = ref_mean
-            scene = load_scene(spec.path, spec.params)
+            planned = plan_scene(spec.path, spec.params)  # as `mcrt render` renders it
+            scene = planned.scene
+
+            def render(sampler_obj, seed: int):
+                subframes, move = planned.schedule(sampler_obj, None, seed)
+                return render_film(scene, sampler_obj, seed=seed, passes=subframes,
+                                   on_pass=move)
 
             for sampler in config.samplers:
                 for spp in config.spp:
                     bar.describe(f"{spec.name}: {sampler.label} {spp} spp")
                     with quiet_sampler_warnings():
-                        render_film(scene, make_sampler(sampler.name, spp, **sampler.params),
-                                    seed=WARMUP_SEED)  # untimed: compiles/caches kernels
+                        render(make_sampler(sampler.name, spp, **sampler.params),
+                               WARMUP_SEED)  # untimed: compiles/caches kernels
                     bar.update()
                     per_seed = []
                     renders = []
                     for seed in config.seeds:
                         with quiet_sampler_warnings():
                             obj = make_sampler(sampler.name, spp, **sampler.params)
-                        result = render_film(scene, obj, seed=seed)
+                        result = render(obj, seed)
                         rgb = np.asarray(result.rgb, dtype=np.float64)
                         if rgb.shape != ref_mean.shape:
                             raise McrtError(f"scene {spec.name!r}: render shape {rgb.shape} "

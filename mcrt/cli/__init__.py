@@ -12,7 +12,8 @@ import logging
 import sys
 
 from ..errors import McrtError
-from . import compare_cmd, demo_cmd, integrate_cmd, pattern_cmd, reference_cmd, render_cmd
+from . import (compare_cmd, demo_cmd, integrate_cmd, pattern_cmd, plan_cmd, reference_cmd,
+               render_cmd)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -27,7 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars or notes")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     commands.required = True
-    for module in (render_cmd, demo_cmd, pattern_cmd, integrate_cmd, reference_cmd, compare_cmd):
+    for module in (render_cmd, demo_cmd, pattern_cmd, integrate_cmd, reference_cmd, compare_cmd,
+                   plan_cmd):
         module.add_parser(commands)
     return parser
 

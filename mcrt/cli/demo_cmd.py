@@ -11,7 +11,8 @@ from ..analysis.metrics import rel_mse
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
 from ..render.passes import render_film
-from ..render.scene import check_sampler_name, load_scene, make_sampler
+from ..render.plan import plan_scene
+from ..render.scene import check_sampler_name, make_sampler
 from ._common import ensure_writable_dir, positive_int
 
 log = logging.getLogger("mcrt.demo")
@@ -55,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         raise McrtError(f"shipped scene(s) not found: {', '.join(missing)} (use --scenes DIR)")
     out = ensure_writable_dir(Path(args.output))
-    scenes = {path.stem: load_scene(path) for path in paths}  # all loading errors first
+    # All loading errors first. The shipped demo scenes are static: no sub-frames.
+    scenes = {path.stem: plan_scene(path).scene for path in paths}
 
     rows = []
     for stem, scene in scenes.items():
