@@ -2,8 +2,8 @@
 
 Importing the package activates the ``llvm_ad_rgb`` variant when none is active
 (after checking that Dr.Jit has a usable libLLVM) and registers mcrt's plugins
-(samplers ``uniform_grid``, ``jittered``, ``poisson_disk``; integrator
-``distribution``), so ``mi.load_dict({'type': 'jittered', ...})``
+(samplers ``uniform_grid``, ``jittered``, ``poisson_disk``; integrators
+``distribution`` and ``adaptive``), so ``mi.load_dict({'type': 'jittered', ...})``
 works right away.
 Call :func:`register` again after switching variants.
 """
@@ -18,7 +18,7 @@ __version__ = "0.1.0"
 initialise()
 
 from . import samplers  # noqa: E402  (needs an active variant)
-from .render import distribution  # noqa: E402
+from .render import adaptive_integrator, distribution  # noqa: E402
 
 
 def register() -> None:
@@ -26,6 +26,7 @@ def register() -> None:
     ensure_variant()
     samplers.register()
     distribution.register()
+    adaptive_integrator.register()
 
 
 register()

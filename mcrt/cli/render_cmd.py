@@ -7,11 +7,13 @@ import logging
 
 from .. import __version__
 from ..io import write_exr, write_png
+from ..render import adaptive
 from ..render.passes import render_film
-from ..render.scene import (check_sampler_name, load_scene, make_sampler, parse_defines,
-                            sampler_name)
+from ..render.plan import parse_effect_overrides, plan_scene
+from ..render.scene import check_sampler_name, make_sampler, parse_defines, sampler_name
 from ..samplers import ALL_SAMPLERS
 from ._common import check_output_files, non_negative_int, output_stem, positive_int
+from .plan_cmd import add_effect_argument
 
 log = logging.getLogger("mcrt.render")
 
@@ -31,6 +33,8 @@ def add_parser(commands) -> None:
                    help="set a scene parameter ($KEY in the XML); repeatable")
     p.add_argument("-o", "--output", metavar="OUT",
                    help="output path without extension (default: <scene>_<sampler>)")
+    add_effect_argument(p)  # the render follows the scene's plan (see `mcrt plan`)
+    adaptive.add_cli_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -39,22 +43,33 @@ def run(args: argparse.Namespace) -> int:
     if args.sampler is not None:
         check_sampler_name(args.sampler)
     params = parse_defines(args.defines)
-    scene = load_scene(args.scene, params)
+    planned = plan_scene(args.scene, params, parse_effect_overrides(args.effect))
+    scene = planned.scene
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
     spp = args.spp or scene_sampler.sample_count()
     sampler = make_sampler(name, spp, args.seed) if args.sampler else scene_sampler
     stem = output_stem(args.output, f"{_scene_stem(args.scene)}_{name}")
+    adaptive_settings = adaptive.cli_settings(args, scene, planned.plan)
+    if adaptive_settings is not None:
+        metadata = {"mcrt_version": __version__, "scene": str(args.scene), "seed": args.seed,
+                    "defines": " ".join(f"{k}={v}" for k, v in params.items())}
+        return adaptive.run_cli_render(args, scene, sampler, name, adaptive_settings, stem,
+                                       metadata)
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
     check_output_files(exr_path, png_path)
 
-    result = render_film(scene, sampler, spp=spp, seed=args.seed, progress=not args.quiet)
+    passes, on_pass = planned.schedule(sampler, spp, args.seed)  # motion sub-frames
+    log.info("plan: %s", ", ".join(planned.plan.effects_on))
+    result = render_film(scene, sampler, spp=spp, seed=args.seed, progress=not args.quiet,
+                         passes=passes, on_pass=on_pass)
     if result.spp != spp:
         log.info("%s uses %d samples per pixel (requested %d)", name, result.spp, spp)
     metadata = {"mcrt_version": __version__, "scene": str(args.scene), "sampler": name,
                 "spp": result.spp, "seed": args.seed, "passes": result.passes,
                 "render_seconds": round(result.seconds, 6),
-                "defines": " ".join(f"{k}={v}" for k, v in params.items())}
+                "defines": " ".join(f"{k}={v}" for k, v in params.items()),
+                "effects": ",".join(planned.plan.effects_on), "plan": planned.plan.to_json()}
     write_exr(exr_path, {"rgb": result.image}, metadata)
     write_png(png_path, result.rgb)
     height, width = result.image.shape[:2]

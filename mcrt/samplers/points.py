@@ -17,7 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import SamplerError
-from .base import McrtSampler
+from .base import is_mcrt_sampler
 
 #: Largest pixel index accepted for Mitsuba's built-in samplers (their layout
 #: needs a wavefront covering every pixel up to the largest one requested).
@@ -53,7 +53,7 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
         sampler.set_sample_count(int(spp))
     spp = sampler.sample_count()
 
-    if isinstance(sampler, McrtSampler):
+    if is_mcrt_sampler(sampler):
         pixel = mi.UInt32(np.repeat(pixel_ids, spp).astype(np.uint32))
         sample = mi.UInt32(np.tile(np.arange(spp, dtype=np.uint32), pixel_ids.size))
         sampler.seed_lanes(seed, pixel, sample)

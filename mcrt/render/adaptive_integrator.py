@@ -1,0 +1,230 @@
+"""The ``adaptive`` integrator plugin: adaptive sampling around any sampling integrator.
+
+``import mcrt`` registers it, so a scene can say::
+
+    <integrator type="adaptive">
+        <float name="threshold" value="0.05"/>
+        <integrator type="path"/>
+    </integrator>
+
+and ``mi.render(scene)`` renders adaptively. The engine is
+:func:`mcrt.render.adaptive.render_adaptive`; the full result of the last render
+(per-pixel sample counts, variance, standard error, passes) is kept in
+``integrator.last_result``.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import McrtError
+from . import adaptive
+from .adaptive import AdaptiveSettings, render_adaptive
+
+#: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
+_classes_variant = mi.variant()
+
+#: Plugin parameter name -> (settings field, type).
+PARAMETERS: dict[str, tuple[str, type]] = {
+    "threshold": ("threshold", float),
+    "confidence": ("confidence", float),
+    "dark_floor": ("dark_floor", float),
+    "min_spp": ("min_spp", int),
+    "max_spp": ("max_spp", int),
+    "growth": ("growth", float),
+    "dilation": ("dilation", int),
+    "subpixels": ("subpixels", int),
+    "max_lanes": ("max_lanes", int),
+}
+
+
+class AdaptiveIntegrator(mi.SamplingIntegrator):
+    r"""
+    .. _integrator-adaptive:
+
+    Adaptive sampling (:monosp:`adaptive`)
+    --------------------------------------
+
+    .. pluginparameters::
+
+     * - (Nested plugin)
+       - |integrator|
+       - The sampling integrator that computes each sample (``path``,
+         ``direct``, ...). (Default: ``path``)
+     * - threshold
+       - |float|
+       - Target relative standard error of a pixel's luminance: a pixel is done
+         when ``z * se_Y <= threshold * max(Y, dark_floor * Ybar)``.
+         (Default: 0.05)
+     * - confidence
+       - |float|
+       - Confidence of that bound; ``z`` is its two-sided normal quantile
+         (1.96 for 0.95). (Default: 0.95)
+     * - dark_floor
+       - |float|
+       - Pixels darker than ``dark_floor`` times the image's mean luminance
+         ``Ybar`` are judged against that level instead of their own, so black
+         pixels stop. (Default: 0.1)
+     * - min_spp
+       - |int|
+       - Samples of every pixel in the first pass (rounded up to a count the
+         sampler supports). (Default: 16)
+     * - max_spp
+       - |int|
+       - Per-pixel budget, NaN/Inf samples included; never exceeded. A nonzero
+         ``spp`` argument of ``mi.render`` overrides it. (Default: 1024)
+     * - growth
+       - |float|
+       - A pass multiplies an active pixel's sample count by about this factor
+         (batch sizes are rounded to counts the sampler supports). (Default: 1.5)
+     * - dilation
+       - |int|
+       - Pixels within this (Chebyshev) distance of a pixel that fails the test
+         are refined with it, at the same rate (against false negatives).
+         (Default: 1)
+     * - subpixels
+       - |int|
+       - ``s``: samples are first averaged in ``s x s`` uniform sub-pixels, which
+         are then filtered into the pixel with the film's filter. (Default: 4)
+     * - max_lanes
+       - |int|
+       - Largest wavefront traced at once. (Default: 4194304)
+
+    Pass 0 traces ``min_spp`` samples per pixel; each later pass traces new
+    samples only for pixels that fail the error test (and their dilation
+    neighbours), through compacted wavefronts, until none fails or the budget
+    is spent. Every pass gives a pixel one complete, fresh pattern of the
+    scene's sampler (batches grow geometrically), so samples stay stratified
+    and never repeat. Per-pixel moments are float64 (Chan's merge); NaN/Inf
+    samples are excluded, counted and reported. The scene sampler's type and
+    parameters are used, not its ``sample_count``.
+
+    ``integrator.last_result`` holds the last render's
+    :class:`~mcrt.render.adaptive.AdaptiveRender` (sample counts, variance,
+    standard error, passes). AOVs of the nested integrator are not kept.
+
+    .. tabs::
+
+        .. code-tab:: xml
+
+            <integrator type="adaptive">
+                <float name="threshold" value="0.05"/>
+                <integrator type="path"/>
+            </integrator>
+
+        .. code-tab:: python
+
+            'type': 'adaptive',
+            'threshold': 0.05,
+            'nested': {'type': 'path'}
+    """
+
+    #: Marker read by :func:`render_adaptive` to unwrap a scene's adaptive integrator.
+    is_adaptive = True
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        nested = []
+        values = {}
+        for name in props.keys():
+            value = props[name]
+            if isinstance(value, mi.Integrator):
+                nested.append(value)
+            elif name in PARAMETERS:
+                values[PARAMETERS[name][0]] = _typed(name, value)
+            elif name not in ("samples_per_pass", "hide_emitters", "timeout"):
+                raise McrtError(f"adaptive: unknown parameter {name!r}; expected one of "
+                                f"{', '.join(PARAMETERS)}")
+        if len(nested) > 1:
+            raise McrtError("adaptive: expected one nested integrator, got "
+                            f"{len(nested)}")
+        inner = nested[0] if nested else mi.load_dict({"type": "path"})
+        if not isinstance(inner, mi.SamplingIntegrator):
+            raise McrtError(f"adaptive: the nested integrator must be a sampling integrator "
+                            f"(path, direct, ...), got {type(inner).__name__}")
+        if getattr(inner, "is_adaptive", False):
+            raise McrtError("adaptive: cannot nest an adaptive integrator in another")
+        self.nested = inner
+        self.settings = AdaptiveSettings(**values).check()
+        self.last_result: adaptive.AdaptiveRender | None = None
+
+    def render(self, scene: mi.Scene, sensor: int | mi.Sensor = 0, seed: int = 0,
+               spp: int = 0, develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
+        """Render adaptively; ``spp`` (if nonzero) overrides ``max_spp``."""
+        sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+        settings = self.settings
+        if spp:
+            settings = AdaptiveSettings(**{**settings.__dict__, "max_spp": int(spp)}).check()
+        result = render_adaptive(scene, settings=settings, seed=_seed_value(seed),
+                                 sensor=sensor_obj, integrator=self.nested)
+        self.last_result = result
+        film = sensor_obj.film()
+        film.prepare([])
+        film.put_block(_block(film, result.image))
+        if not develop:
+            return mi.TensorXf()
+        image = film.develop()
+        dr.eval(image)
+        return image
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        """One sample of the nested integrator (adaptivity lives in :meth:`render`)."""
+        return self.nested.sample(scene, sampler, ray, medium, active)
+
+    def aov_names(self) -> list[str]:
+        return []
+
+    def to_string(self) -> str:
+        params = ", ".join(f"{k}={v}" for k, v in self.settings.__dict__.items())
+        return f"AdaptiveIntegrator[{params}, nested={self.nested}]"
+
+
+def _typed(name: str, value):
+    kind = PARAMETERS[name][1]
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise McrtError(f"adaptive: '{name}' must be an integer, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise McrtError(f"adaptive: '{name}' must be a number, got {value!r}")
+    return float(value)
+
+
+def _seed_value(seed) -> int:
+    if isinstance(seed, int):
+        return seed
+    array = np.asarray(seed).ravel()
+    if array.size != 1:
+        raise McrtError("adaptive: expected a single seed value")
+    return int(array[0])
+
+
+def _block(film: mi.Film, image: np.ndarray) -> mi.ImageBlock:
+    """An image block holding the reconstructed crop window with unit weights."""
+    channels = film.base_channels_count()  # R, G, B[, A]
+    if image.shape[2] != channels:
+        raise McrtError(f"adaptive: cannot develop {image.shape[2]} channels into a film with "
+                        f"{channels}; use an rgb or rgba hdrfilm")
+    h, w, _ = image.shape
+    data = np.concatenate([image, np.ones((h, w, 1), np.float32)], axis=-1)
+    return mi.ImageBlock(mi.TensorXf(np.ascontiguousarray(data, dtype=np.float32)),
+                         film.crop_offset(), film.rfilter(), border=False, normalize=False)
+
+
+def register() -> None:
+    """Register the ``adaptive`` integrator with the active Mitsuba variant.
+
+    After a variant switch the module is re-imported so that the class derives
+    from the new variant's ``mi.SamplingIntegrator`` (as for the samplers).
+    """
+    module = importlib.import_module(__name__)
+    if mi.variant() != module._classes_variant:
+        module = importlib.reload(module)
+    mi.register_integrator("adaptive", lambda props, cls=module.AdaptiveIntegrator: cls(props))
+
+
+__all__ = ["AdaptiveIntegrator", "PARAMETERS", "register"]
