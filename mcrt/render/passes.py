@@ -17,9 +17,10 @@ Two accumulators share that loop:
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
@@ -32,7 +33,7 @@ from .trace import film_grid_size, pixel_of_index, trace
 
 #: Default cap on lanes per pass: big enough that typical renders run in one
 #: kernel, small enough to bound memory and give a progress bar granularity.
-MAX_LANES_PER_PASS = 1 << 24
+MAX_LANES_PER_PASS = 1 << 22
 
 
 def samples_per_pass(pixels: int, spp: int, max_lanes: int = MAX_LANES_PER_PASS) -> int:
@@ -54,7 +55,12 @@ class FilmRender:
     passes: int
     seconds: float  # wall time of the passes, synchronised (kernel compilation included)
     pixels: int
-    extra: dict = field(default_factory=dict)
+    nonfinite: np.ndarray | None = None  # (grid height, grid width) samples left out
+
+    @property
+    def nonfinite_samples(self) -> int:
+        """NaN/Inf samples detected and left out of the image."""
+        return 0 if self.nonfinite is None else int(self.nonfinite.sum())
 
     @property
     def samples(self) -> int:
@@ -108,6 +114,100 @@ def _seeded_lanes(film: mi.Film, sampler: mi.Sampler, seed: int, pixels: int, gr
     return pixel_of_index(film, pixel_index), pixel_index
 
 
+class _FilmSplatter:
+    """Deterministic splatting of pixel-major samples into the film's block.
+
+    Mitsuba's ``ImageBlock.put`` adds each sample into the pixels under its
+    reconstruction filter with atomic float adds, whose order depends on thread
+    scheduling: with any filter wider than a box the image changes in its last
+    bits from run to run. Because a pass is pixel-major (a pixel's ``g`` samples
+    are consecutive lanes), the same sums can be formed without atomics: for each
+    offset ``d`` within the filter's reach, ``dr.block_sum`` over each pixel's
+    lanes gives that pixel's total contribution to pixel ``P + d`` (a fixed,
+    sequential order), and these per-pixel totals are added on the host in a fixed
+    order of offsets. The result is bit-identical across runs and thread counts.
+
+    A sample with a non-finite channel is left out entirely (no value, no
+    weight) and counted per pixel: it never turns into a NaN pixel nor a
+    silently darkened one.
+    """
+
+    def __init__(self, film: mi.Film, pixels_xy: np.ndarray, group: int) -> None:
+        block = film.create_block()
+        self.film, self.group = film, group
+        self.offset, self.border = block.offset(), block.border_size()
+        ext = np.array(block.size()) + 2 * self.border  # (width, height)
+        self.origin = np.array(self.offset) - self.border  # film coords of block pixel (0, 0)
+        self.channels = block.channel_count()
+        self.accum = np.zeros((int(ext[1]), int(ext[0]), self.channels), np.float64)
+        self.nonfinite = np.zeros(len(pixels_xy), np.int64)
+        self.pixels_xy = pixels_xy  # (pixels, 2) film coordinates of the sampled grid
+        rfilter = film.rfilter()
+        self.box = rfilter.is_box_filter()
+        reach = 0 if self.box else math.ceil(rfilter.radius() + 0.5) - 1
+        self.offsets = [(dx, dy) for dy in range(-reach, reach + 1)
+                        for dx in range(-reach, reach + 1)]
+
+    def add(self, pixel: mi.Vector2i, position: mi.Point2f, values: list[mi.Float]) -> None:
+        """Accumulate one evaluated pass (lanes pixel-major, ``group`` per pixel)."""
+        finite = dr.isfinite(values[0])
+        for v in values[1:]:
+            finite &= dr.isfinite(v)
+        kept = [dr.select(finite, v, 0.0) for v in values]
+        bad = dr.select(finite, 0.0, 1.0)
+        dr.eval(kept, bad)
+        self.nonfinite += np.array(dr.block_sum(bad, self.group), dtype=np.int64)
+        if self.box:  # the sample counts for its own pixel only, with weight 1
+            sums = [[dr.block_sum(v, self.group) for v in kept]]
+        else:
+            sums = self._filtered_sums(pixel, position, kept)
+        for (dx, dy), per_channel in zip(self.offsets, sums):
+            block = np.stack([np.array(v, dtype=np.float64) for v in per_channel], axis=-1)
+            target = self.pixels_xy + (dx, dy) - self.origin
+            inside = ((target >= 0) & (target < (self.accum.shape[1], self.accum.shape[0]))).all(1)
+            self.accum[target[inside, 1], target[inside, 0]] += block[inside]
+
+    def _filtered_sums(self, pixel: mi.Vector2i, position: mi.Point2f,
+                       kept: list[mi.Float]) -> list[list[mi.Float]]:
+        """Per pixel and offset ``d``: the filter-weighted sums of its samples for
+        the pixel ``d`` away. One kernel over pixels, looping over each pixel's
+        samples in order (the filter is separable: ``w = w(dx) w(dy)``)."""
+        rfilter, group = self.film.rfilter(), self.group
+        count = len(self.pixels_xy)
+        first = dr.arange(mi.UInt32, count) * group
+        centre = dr.gather(mi.Point2f, mi.Point2f(pixel) + 0.5, first)
+        reach = sorted({dx for dx, _ in self.offsets})
+        n_sums = len(self.offsets) * len(kept)
+
+        def body(k, *sums):
+            lane = first + k
+            pos = dr.gather(mi.Point2f, position, lane)
+            vals = [dr.gather(mi.Float, v, lane) for v in kept]
+            wx = {d: rfilter.eval(centre.x + d - pos.x) for d in reach}
+            wy = {d: rfilter.eval(centre.y + d - pos.y) for d in reach}
+            out, i = [], 0
+            for dx, dy in self.offsets:
+                w = wx[dx] * wy[dy]
+                for v in vals:
+                    out.append(dr.fma(v, w, sums[i]))
+                    i += 1
+            return (k + 1, *out)
+
+        state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float, count)] * n_sums),
+                              lambda k, *sums: k < group, body)
+        flat = list(state[1:])
+        dr.eval(flat)
+        c = len(kept)
+        return [flat[i * c:(i + 1) * c] for i in range(len(self.offsets))]
+
+    def develop(self) -> mi.TensorXf:
+        """Hand the sums to the film (it normalises by the weight channel)."""
+        block = mi.ImageBlock(mi.TensorXf(self.accum.astype(np.float32)), self.offset,
+                              self.film.rfilter(), border=self.border > 0)
+        self.film.put_block(block)
+        return self.film.develop()
+
+
 def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
                 seed: int = 0, sensor: int = 0, progress: bool = False,
                 max_lanes: int = MAX_LANES_PER_PASS, passes: int | None = None,
@@ -115,7 +215,9 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
 
     Returns the developed film as a numpy array together with the effective
-    sample count (samplers may round it), number of passes and wall time.
+    sample count (samplers may round it), number of passes, wall time and the
+    per-pixel count of non-finite samples (left out of the image, see
+    :class:`_FilmSplatter`; the image is bit-identical across runs).
     ``passes`` forces the number of passes (it must divide the sample count);
     ``on_pass(index, count)`` runs before each pass is traced (e.g. to move
     geometry for a motion-blur sub-frame).
@@ -134,12 +236,10 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     n_passes = spp // group
 
     film.prepare(integrator.aov_names())
-    block = film.create_block()
-    block.set_offset(film.crop_offset())
-    block.set_coalesce(block.coalesce() and group >= 4)
     has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    box_filter = film.rfilter().is_box_filter()
     pixel, _ = _seeded_lanes(film, sampler, seed, pixels, group)
+    grid_xy = pixel_of_index(film, dr.arange(mi.UInt32, pixels))
+    splatter = _FilmSplatter(film, np.array(grid_xy, dtype=np.int64).T.reshape(-1, 2), group)
 
     bar = _progress_bar(n_passes, pixels * group, enabled=progress and n_passes > 1)
     dr.sync_thread()
@@ -151,20 +251,21 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
         values = [s.rgb.x, s.rgb.y, s.rgb.z]
         values += [dr.select(s.valid, 1.0, 0.0), mi.Float(1.0)] if has_alpha else [mi.Float(1.0)]
         values += s.aovs
-        block.put(mi.Vector2f(pixel) if box_filter else s.position, values)
         sampler.advance()
         sampler.schedule_state()
-        dr.eval(block.tensor())
+        position = mi.Point2f(s.position)
+        dr.eval(values, position)  # one kernel: samples and the sampler's next state
+        splatter.add(pixel, position, values)
         bar.update(1)
-    film.put_block(block)
-    image = film.develop()
+    image = splatter.develop()
     dr.sync_thread()
     seconds = time.perf_counter() - start
     bar.close()
 
     array = np.array(image, dtype=np.float32)
     return FilmRender(image=array, channels=channel_names(film, array.shape[-1]), spp=spp,
-                      passes=n_passes, seconds=seconds, pixels=pixels)
+                      passes=n_passes, seconds=seconds, pixels=pixels,
+                      nonfinite=splatter.nonfinite.reshape(int(grid[1]), int(grid[0])))
 
 
 @dataclass

@@ -16,6 +16,9 @@ import mitsuba as mi
 #: 2^32 / golden ratio, used to spread small consecutive keys over 32 bits.
 GOLDEN_U32 = 0x9E3779B9
 
+#: Start of every hash chain.
+HASH_INIT = 0x6A09E667
+
 #: Multiplier turning the top 24 bits of a uint32 into a float in [0, 1).
 INV_2_24 = 1.0 / (1 << 24)
 
@@ -29,18 +32,26 @@ def mix32(x: mi.UInt32) -> mi.UInt32:
     return x ^ (x >> 16)
 
 
+def hash_extend(h: mi.UInt32, *keys: mi.UInt32 | int) -> mi.UInt32:
+    """Continue a hash chain: ``hash_extend(hash_keys(a, b), c) == hash_keys(a, b, c)``.
+
+    Lets callers hash a prefix of keys once (e.g. seed and pixel) and extend it
+    per dimension.
+    """
+    for k in keys:
+        spread = (k * GOLDEN_U32 + 0x7F4A7C15) & 0xFFFFFFFF if isinstance(k, int) \
+            else k * GOLDEN_U32 + 0x7F4A7C15
+        h = mix32(h ^ spread)
+    return h
+
+
 def hash_keys(*keys: mi.UInt32 | int) -> mi.UInt32:
     """Hash an ordered tuple of 32-bit keys into one well-mixed 32-bit value.
 
     The order matters (``hash_keys(a, b) != hash_keys(b, a)``), so callers can
     use positions as "which key is which" without extra tagging.
     """
-    h = mi.UInt32(0x6A09E667)
-    for k in keys:
-        spread = (k * GOLDEN_U32 + 0x7F4A7C15) & 0xFFFFFFFF if isinstance(k, int) \
-            else k * GOLDEN_U32 + 0x7F4A7C15
-        h = mix32(h ^ spread)
-    return h
+    return hash_extend(mi.UInt32(HASH_INIT), *keys)
 
 
 def unit_float(h: mi.UInt32) -> mi.Float:
@@ -65,7 +76,7 @@ def mix32_int(x: int) -> int:
 
 def hash_keys_int(*keys: int) -> int:
     """:func:`hash_keys` on Python ints; equal to it for the same keys."""
-    h = 0x6A09E667
+    h = HASH_INIT
     for k in keys:
         h = mix32_int(h ^ ((k * GOLDEN_U32 + 0x7F4A7C15) & 0xFFFFFFFF))
     return h

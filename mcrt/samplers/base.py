@@ -25,7 +25,7 @@ import mitsuba as mi
 
 from ..errors import SamplerError
 from . import _layout
-from ._hash import hash_keys, hash_keys_int
+from ._hash import hash_extend, hash_keys, hash_keys_int
 from ._stratified import split_sample
 
 #: ``seed()``'s default wavefront size: "keep the previous one" (Mitsuba's -1).
@@ -118,9 +118,9 @@ class McrtSampler(mi.Sampler):
         group_hint = _layout.take_samples_per_wavefront(self)
         self._layout = _layout.resolve_layout(wavefront, self.sample_count(), group_hint,
                                               _layout.probe_available())
-        self._lanes = None
         self._key = self._seed_key(seed)
-        self._restart(0)
+        pixel, in_group = split_sample(dr.arange(mi.UInt32, wavefront), self._layout.group)
+        self._set_lanes(pixel, in_group, self._layout.group)
 
     def advance(self) -> None:
         """Move every lane to its next sample (next pass); dimensions restart at 0."""
@@ -130,12 +130,12 @@ class McrtSampler(mi.Sampler):
         dr.schedule(self._key, self._dim, self._pass)
 
     def next_1d(self, active: mi.Bool = True) -> mi.Float:
-        pixel, sample = self._lane_indices()
-        return self._sample_1d(self._dimension_key(pixel), sample, active)
+        key, sample = self._next_dimension()
+        return self._sample_1d(key, sample, active)
 
     def next_2d(self, active: mi.Bool = True) -> mi.Point2f:
-        pixel, sample = self._lane_indices()
-        return self._sample_2d(self._dimension_key(pixel), sample, active)
+        key, sample = self._next_dimension()
+        return self._sample_2d(key, sample, active)
 
     def fork(self) -> mi.Sampler:
         """A fresh, unseeded sampler with the same parameters."""
@@ -179,10 +179,8 @@ class McrtSampler(mi.Sampler):
         self._run_base("seed", seed, dr.width(pixel))
         _layout.take_samples_per_wavefront(self)
         self._layout = _layout.Layout(dr.width(pixel), 1)
-        self._lanes = (pixel, sample)
-        self._lane_stride = self.sample_count() if stride is None else int(stride)
         self._key = self._seed_key(seed)
-        self._restart(0)
+        self._set_lanes(pixel, sample, self.sample_count() if stride is None else int(stride))
 
     def skip_dimensions(self, count: int) -> None:
         """Advance the dimension index by ``count`` without drawing samples."""
@@ -212,26 +210,40 @@ class McrtSampler(mi.Sampler):
         dr.make_opaque(key)
         return key
 
-    def _lane_indices(self) -> tuple[mi.UInt32, mi.UInt32]:
-        """(pixel index, sample index) of every lane of the current pass."""
-        if self._layout is None:
-            raise SamplerError(f"{self.plugin_name}: seed() must be called before sampling")
-        if self._lanes is not None:
-            pixel, sample = self._lanes
-            return pixel, sample + self._pass * self._lane_stride
-        group = self._layout.group
-        lane = dr.arange(mi.UInt32, self._layout.wavefront)
-        pixel, in_group = split_sample(lane, group)
-        return pixel, in_group + self._pass * group
+    def _set_lanes(self, pixel: mi.UInt32, first_sample: mi.UInt32, stride: int) -> None:
+        """Lane state after seeding: the per-lane (seed, pixel) hash and sample
+        index of pass 0; pass ``k`` uses sample ``first_sample + k * stride``.
 
-    def _dimension_key(self, pixel: mi.UInt32) -> mi.UInt32:
-        """Key of (seed, pixel, current dimension); consumes the dimension."""
+        Both stay lazy expressions (no memory): inside Mitsuba's path loop they
+        are loop-invariant, so the pixel part of every dimension's hash is
+        computed once per path instead of once per dimension.
+        """
+        self._lanes = (hash_keys(self._key, pixel), mi.UInt32(first_sample))
+        self._lane_stride = stride
+        self._restart(0)
+
+    def _next_dimension(self) -> tuple[mi.UInt32, mi.UInt32]:
+        """Key of (seed, pixel, dimension) and sample index per lane; consumes
+        the dimension. The key equals ``hash_keys(seed key, pixel, dimension)``."""
+        if self._lanes is None:
+            raise SamplerError(f"{self.plugin_name}: seed() must be called before sampling")
+        pixel_key, first_sample = self._lanes
         dim = self._dim
         self._dim = dim + 1
-        return hash_keys(self._key, pixel, dim)
+        return hash_extend(pixel_key, dim), first_sample + self._pass * self._lane_stride
 
     def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: mi.Bool) -> mi.Float:
         raise NotImplementedError
 
     def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: mi.Bool) -> mi.Point2f:
         raise NotImplementedError
+
+
+def is_mcrt_sampler(sampler: mi.Sampler) -> bool:
+    """Whether ``sampler`` is one of mcrt's (counter-based, ``seed_lanes``) samplers.
+
+    Checked by module rather than by class: after a variant switch the plugin
+    classes are re-created, and objects of either generation qualify.
+    """
+    return any(cls.__module__ == __name__ and cls.__name__ == "McrtSampler"
+               for cls in type(sampler).__mro__)
