@@ -13,8 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mcrt.analysis.aliasing import (MIN_SIZE, Z_THRESHOLD, aliasing_score, error_spectrum,
-                                    low_band_ratio, peak_to_median, white_noise_ratio_sd)
+from mcrt.analysis.aliasing import (
+    MIN_SIZE,
+    Z_THRESHOLD,
+    aliasing_score,
+    error_spectrum,
+    low_band_ratio,
+    peak_to_median,
+    white_noise_ratio_sd,
+)
 from mcrt.analysis.metrics import error_map
 
 CHECKERBOARD = Path(__file__).resolve().parents[1] / "scenes" / "checkerboard.xml"

@@ -8,10 +8,21 @@ import numpy as np
 import pytest
 
 from mcrt.analysis.convergence import efficiency, fit_loglog
-from mcrt.analysis.metrics import (REL_MSE_EPSILON, bias, delta_e_2000, delta_e_2000_map,
-                                   error_map, luminance, mse, mse_excess,
-                                   reference_noise_floor, rel_mse, srgb_to_lab,
-                                   standard_error_map, variance_map)
+from mcrt.analysis.metrics import (
+    REL_MSE_EPSILON,
+    bias,
+    delta_e_2000,
+    delta_e_2000_map,
+    error_map,
+    luminance,
+    mse,
+    mse_excess,
+    reference_noise_floor,
+    rel_mse,
+    srgb_to_lab,
+    standard_error_map,
+    variance_map,
+)
 
 Z95 = 1.959963984540054  # standard normal 97.5% quantile
 

@@ -14,9 +14,19 @@ import numpy as np
 import pytest
 
 import mcrt.analysis.reference as reference
-from mcrt.analysis.reference import (PassPlan, cache_paths, get_reference, load_state, pass_seed,
-                                     plan_passes, reference_key, reference_layers,
-                                     reference_metadata, save_state, scene_digest)
+from mcrt.analysis.reference import (
+    PassPlan,
+    cache_paths,
+    get_reference,
+    load_state,
+    pass_seed,
+    plan_passes,
+    reference_key,
+    reference_layers,
+    reference_metadata,
+    save_state,
+    scene_digest,
+)
 from mcrt.analysis.statistics import PixelStats
 from mcrt.cli import main
 from mcrt.errors import McrtError

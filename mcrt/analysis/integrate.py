@@ -58,9 +58,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
-from ..render.scene import mitsuba_message
+from ..render.scene import mitsuba_message, quiet_sampler_warnings
 from ..samplers.points import point_sets
-from ..render.scene import quiet_sampler_warnings
 
 #: Default trials (pixels) per sample count.
 DEFAULT_TRIALS = 1024

@@ -79,7 +79,8 @@ def plot_spectrum(ax, spectrum: np.ndarray, n_points: int, title: str = "",
         ax.set_title(title, fontsize=9)
 
 
-def plot_radial_power(ax, radial: RadialSpectrum, label: str | None = None, title: str = "") -> None:
+def plot_radial_power(ax, radial: RadialSpectrum, label: str | None = None,
+                      title: str = "") -> None:
     """Radially averaged power against ``f = |k| / sqrt(N)``; white noise = 1."""
     ax.plot(radial.frequency, radial.power, lw=1.2, label=label)
     ax.axhline(1.0, color="0.6", lw=0.8, ls="--")

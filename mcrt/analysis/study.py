@@ -64,8 +64,16 @@ import numpy as np
 from ..errors import McrtError
 from .aliasing import MIN_SIZE, Z_THRESHOLD, aliasing_score
 from .convergence import efficiency, fit_loglog
-from .metrics import (REL_MSE_EPSILON, bias, delta_e_2000, error_map, mse,
-                      reference_noise_floor, rel_mse, variance_map)
+from .metrics import (
+    REL_MSE_EPSILON,
+    bias,
+    delta_e_2000,
+    error_map,
+    mse,
+    reference_noise_floor,
+    rel_mse,
+    variance_map,
+)
 from .statistics import PixelStats
 
 log = logging.getLogger("mcrt.compare")
@@ -203,8 +211,8 @@ def _params(value: Any, where: str, as_str: bool) -> dict:
 def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
                  path: Path | None = None) -> StudyConfig:
     """Check the structure and numbers of a parsed TOML study (no scene loading)."""
-    from ..render.scene import check_sampler_name
     from ..errors import SamplerError
+    from ..render.scene import check_sampler_name
 
     base_dir = base_dir or Path.cwd()
     _check_keys(data, _TOP_KEYS, "")

@@ -12,8 +12,7 @@ import logging
 import sys
 
 from ..errors import McrtError
-from . import (compare_cmd, demo_cmd, integrate_cmd, pattern_cmd, plan_cmd, reference_cmd,
-               render_cmd)
+from . import compare_cmd, demo_cmd, integrate_cmd, pattern_cmd, plan_cmd, reference_cmd, render_cmd
 
 
 class _Parser(argparse.ArgumentParser):

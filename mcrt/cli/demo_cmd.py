@@ -47,7 +47,8 @@ def add_parser(commands) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    samplers = [check_sampler_name(name.strip()) for name in args.samplers.split(",") if name.strip()]
+    names = [name.strip() for name in args.samplers.split(",") if name.strip()]
+    samplers = [check_sampler_name(name) for name in names]
     if not samplers:
         raise McrtError("--samplers: give at least one sampler")
     scene_dir = args.scenes or default_scene_dir()

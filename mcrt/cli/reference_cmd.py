@@ -7,8 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.reference import (DEFAULT_REFERENCE_SPP, get_reference, reference_layers,
-                                  reference_metadata)
+from ..analysis.reference import (
+    DEFAULT_REFERENCE_SPP,
+    get_reference,
+    reference_layers,
+    reference_metadata,
+)
 from ..errors import SceneError
 from ..io import write_exr
 from ..render.scene import check_sampler_name, parse_defines

@@ -64,8 +64,16 @@ import numpy as np
 
 from ..errors import McrtError, SceneError
 from . import distribution
-from .motion import (NEGLIGIBLE_STREAK_PX, SUBFRAME_STEP_PX, Motion, MotionDriver,
-                     sample_times, subframe_count, subframe_times, take_motion)
+from .motion import (
+    NEGLIGIBLE_STREAK_PX,
+    SUBFRAME_STEP_PX,
+    Motion,
+    MotionDriver,
+    sample_times,
+    subframe_count,
+    subframe_times,
+    take_motion,
+)
 from .scene import mitsuba_message, quiet_sampler_warnings, sampler_name
 
 #: Effect names in the order plans list them, with a one-line description.

@@ -14,8 +14,14 @@ from __future__ import annotations
 import mitsuba as mi
 
 from ._hash import hash_keys, mix32, unit_float
-from ._strata import (GOLDEN_FRAC_U32, R2_X_U32, R2_Y_U32, epoch_offset, jittered_offset,
-                      place_in_stratum)
+from ._strata import (
+    GOLDEN_FRAC_U32,
+    R2_X_U32,
+    R2_Y_U32,
+    epoch_offset,
+    jittered_offset,
+    place_in_stratum,
+)
 
 
 def split_sample(sample: mi.UInt32, n: int) -> tuple[mi.UInt32, mi.UInt32]:
