@@ -66,7 +66,7 @@ import numpy as np
 from ..cache import cache_dir
 from ..errors import McrtError, SamplerError
 from ..io.atomic import atomic_path
-from ..render.passes import render_stats
+from ..render.passes import deferred_interrupts, render_stats
 from ..render.plan import plan_scene
 from ..render.scene import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..render.trace import film_grid_size
@@ -535,6 +535,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     bar = _progress_bar(plan, done, progress)
     writable = cache
     session_seconds, session_samples = 0.0, 0
+    merged = done
     try:
         for index in range(done, plan.passes):
             start = time.perf_counter()
@@ -546,7 +547,9 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
             if part.spp != count:  # the plan only uses counts the sampler keeps
                 raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
                                    f"{index}, planned {count}")
-            total = part.stats if total is None else total.merge(part.stats)
+            with deferred_interrupts():  # the merge and its count change together
+                total = part.stats if total is None else total.merge(part.stats)
+                merged = index + 1
             elapsed = time.perf_counter() - start
             seconds += elapsed
             session_seconds += elapsed
@@ -569,10 +572,24 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                 bar.update(1)
             if on_pass is not None:
                 on_pass(index, plan.passes)
+    except KeyboardInterrupt:
+        if total is None:
+            raise
+        raise ReferenceInterrupted(result(total, seconds, resumed=resumed), merged) from None
     finally:
         if bar is not None:
             bar.close()
     return result(total, seconds, resumed=resumed)
+
+
+class ReferenceInterrupted(Exception):
+    """Ctrl-C during :func:`get_reference`: ``partial`` holds the passes merged
+    so far (their state is in the cache, so the same call resumes)."""
+
+    def __init__(self, partial: Reference, passes_done: int) -> None:
+        super().__init__("reference interrupted")
+        self.partial = partial
+        self.passes_done = passes_done
 
 
 # --------------------------------------------------------------------------- output
@@ -608,5 +625,5 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
         "samples": ref.drawn_samples, "finite_samples": ref.samples,
         "nonfinite_samples": int(ref.stats.nonfinite.sum()),
         "max_pixel_count": int(ref.stats.count.max()),
-        "cache_key": ref.key, "render_seconds": round(float(ref.seconds), 6),
+        "cache_key": ref.key,
     }

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..analysis.reference import (
     DEFAULT_REFERENCE_SPP,
+    ReferenceInterrupted,
     get_reference,
     reference_layers,
     reference_metadata,
@@ -64,9 +65,20 @@ def run(args: argparse.Namespace) -> int:
     out = _output_path(args.output, args.scene)
     check_output_files(out)
 
-    ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler, seed=args.seed,
-                        spp_per_pass=args.spp_per_pass, progress=not args.quiet,
-                        cache=not args.no_cache)
+    try:
+        ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
+                            seed=args.seed, spp_per_pass=args.spp_per_pass,
+                            progress=not args.quiet, cache=not args.no_cache)
+    except ReferenceInterrupted as stop:
+        part = stop.partial
+        meta = {**reference_metadata(part, args.scene, params), "partial": 1,
+                "passes_done": stop.passes_done, "spp": int(part.stats.count.max())}
+        write_exr(out, reference_layers(part), meta)
+        print(f"interrupted after {stop.passes_done} of {part.passes} passes: wrote the partial "
+              f"reference ({int(part.stats.count.max())} of {part.spp} spp) to {out}")
+        if not args.no_cache:
+            print("run the same command again to resume")
+        return 130
     write_exr(out, reference_layers(ref), reference_metadata(ref, args.scene, params))
 
     height, width = ref.mean.shape[:2]

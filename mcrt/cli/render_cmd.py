@@ -1,16 +1,31 @@
-"""``mcrt render``: render a scene with any sampler, write EXR + PNG."""
+"""``mcrt render``: render a scene with any sampler, write EXR + PNG.
+
+Interrupting a render (Ctrl-C) writes the passes finished so far as OUT.exr /
+OUT.png, marked partial with their sample count, and keeps a checkpoint next to
+them (``.OUT.exr.mcrt-resume.npz``); running the same command again resumes
+from it. If the outputs cannot be written at the end (say, a full disk), the
+finished render is kept the same way and the next run only writes it.
+"""
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import logging
+import shutil
+from dataclasses import asdict
+from pathlib import Path
 
 from .. import __version__
+from ..cache import cache_dir
+from ..errors import McrtError
 from ..io import write_exr, write_png
 from ..render import adaptive
-from ..render.passes import render_film
+from ..render.passes import FilmCheckpoint, FilmRender, RenderInterrupted, render_film
 from ..render.plan import parse_effect_overrides, plan_scene
 from ..render.scene import check_sampler_name, make_sampler, parse_defines, sampler_name
+from ..render.trace import film_grid_size
 from ..samplers import ALL_SAMPLERS
 from ._common import check_output_files, non_negative_int, output_stem, positive_int
 from .plan_cmd import add_effect_argument
@@ -22,7 +37,8 @@ def add_parser(commands) -> None:
     p = commands.add_parser(
         "render", help="render a scene with a chosen sampler",
         description="Render SCENE.xml and write OUT.exr (float32) and OUT.png (sRGB preview; "
-                    "linear values above 1 are clipped).")
+                    "linear values above 1 are clipped). Ctrl-C writes the passes finished so "
+                    "far (marked partial); the same command then resumes.")
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     p.add_argument("--sampler", metavar="NAME",
                    help=f"sampler plugin (default: the scene's); one of {', '.join(ALL_SAMPLERS)}")
@@ -43,43 +59,197 @@ def run(args: argparse.Namespace) -> int:
     if args.sampler is not None:
         check_sampler_name(args.sampler)
     params = parse_defines(args.defines)
-    planned = plan_scene(args.scene, params, parse_effect_overrides(args.effect))
+    overrides = parse_effect_overrides(args.effect)
+    planned = plan_scene(args.scene, params, overrides)
     scene = planned.scene
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
     spp = args.spp or scene_sampler.sample_count()
     sampler = make_sampler(name, spp, args.seed) if args.sampler else scene_sampler
-    stem = output_stem(args.output, f"{_scene_stem(args.scene)}_{name}")
-    adaptive_settings = adaptive.cli_settings(args, scene, planned.plan)
-    if adaptive_settings is not None:
-        metadata = {"mcrt_version": __version__, "scene": str(args.scene), "seed": args.seed,
-                    "defines": " ".join(f"{k}={v}" for k, v in params.items())}
-        return adaptive.run_cli_render(args, scene, sampler, name, adaptive_settings, stem,
-                                       metadata)
+    stem = output_stem(args.output, f"{Path(args.scene).stem}_{name}")
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
-    check_output_files(exr_path, png_path)
+    adaptive_settings = adaptive.cli_settings(args, scene, planned.plan)
+    heat_path = stem.with_name(stem.name + "_spp.png") if adaptive_settings else None
+    check_output_files(exr_path, png_path, *([heat_path] if heat_path else []))
+    check_free_space(exr_path.parent, scene)
+    metadata = {"mcrt_version": __version__, "scene": str(args.scene), "sampler": name,
+                "seed": args.seed, "defines": " ".join(f"{k}={v}" for k, v in params.items()),
+                "effects": ",".join(planned.plan.effects_on), "plan": planned.plan.to_json()}
+    if adaptive_settings is not None:
+        key = render_key(args.scene, params, overrides, name, 0, args.seed, None,
+                         adaptive=asdict(adaptive_settings))
+        return _run_adaptive(args, scene, sampler, name, adaptive_settings, metadata,
+                             (exr_path, png_path, heat_path), key)
 
     passes, on_pass = planned.schedule(sampler, spp, args.seed)  # motion sub-frames
+    if sampler.sample_count() != spp:
+        log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
+    key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
+                     passes)
+    resume_paths = _resume_paths(exr_path, key)
+    state = next((s for s in (FilmCheckpoint.load(p, key) for p in resume_paths) if s), None)
+    if state is not None:
+        log.info("resuming after pass %d of %d (%d of %d spp done)", state.passes_done,
+                 state.passes, state.spp * state.passes_done // state.passes, state.spp)
     log.info("plan: %s", ", ".join(planned.plan.effects_on))
-    result = render_film(scene, sampler, spp=spp, seed=args.seed, progress=not args.quiet,
-                         passes=passes, on_pass=on_pass)
-    if result.spp != spp:
-        log.info("%s uses %d samples per pixel (requested %d)", name, result.spp, spp)
-    metadata = {"mcrt_version": __version__, "scene": str(args.scene), "sampler": name,
-                "spp": result.spp, "seed": args.seed, "passes": result.passes,
-                "render_seconds": round(result.seconds, 6),
-                "defines": " ".join(f"{k}={v}" for k, v in params.items()),
-                "effects": ",".join(planned.plan.effects_on), "plan": planned.plan.to_json()}
-    write_exr(exr_path, {"rgb": result.image}, metadata)
-    write_png(png_path, result.rgb)
+
+    try:
+        result = render_film(scene, sampler, spp=spp, seed=args.seed, progress=not args.quiet,
+                             passes=passes, on_pass=on_pass, resume=state)
+    except RenderInterrupted as stop:
+        kept = _keep(stop.checkpoint, key, resume_paths)
+        done, total = stop.checkpoint.passes_done, stop.checkpoint.passes
+        if stop.partial is not None:
+            _write(exr_path, png_path, stop.partial, {**metadata, "partial": 1,
+                                                      "spp_target": stop.checkpoint.spp})
+            print(f"interrupted after {done} of {total} passes: wrote the partial image "
+                  f"({stop.partial.spp} of {stop.checkpoint.spp} spp) to {exr_path} and "
+                  f"{png_path}")
+        else:
+            print("interrupted before the first pass finished: nothing written")
+        if kept is not None and done:
+            print(f"checkpoint {kept}: run the same command again to resume")
+        return 130
+
+    try:
+        _write(exr_path, png_path, result, metadata)
+    except (McrtError, OSError) as error:
+        kept = _keep(result.checkpoint, key, resume_paths)
+        where = f"; the finished render is kept in {kept}: free some space and run the " \
+                f"same command again to write it without rendering" if kept else ""
+        raise McrtError(f"{error}{where}") from None
+    for path in resume_paths:
+        path.unlink(missing_ok=True)
     height, width = result.image.shape[:2]
     print(f"sampler {name}  spp {result.spp}  {width}x{height}  passes {result.passes}  "
           f"time {result.seconds:.2f} s  {result.samples_per_second / 1e6:.2f} M samples/s")
+    if result.nonfinite_samples:
+        print(f"non-finite samples: {result.nonfinite_samples} (NaN/Inf, left out of the image; "
+              f"{int((result.nonfinite > 0).sum())} pixels affected)")
     print(f"wrote {exr_path} and {png_path}")
     return 0
 
 
-def _scene_stem(path: str) -> str:
-    from pathlib import Path
+def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -> None:
+    """Write the EXR (no timings in it, so equal renders give equal files) and PNG."""
+    meta = {**metadata, "spp": result.spp, "passes": result.passes,
+            "nonfinite_samples": result.nonfinite_samples}
+    layers = {"rgb": result.image}
+    if result.nonfinite_samples:
+        layers["nonfinite"] = result.nonfinite.astype("float32")
+    write_exr(exr_path, layers, meta)
+    write_png(png_path, result.rgb)
 
-    return Path(path).stem
+
+def _resume_paths(exr_path: Path, key: str) -> tuple[Path, Path]:
+    """Where a checkpoint is kept: next to the output, else in the cache."""
+    return (exr_path.with_name(f".{exr_path.name}.mcrt-resume.npz"),
+            cache_dir("resume") / f"{key}.npz")
+
+
+def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
+                  paths: tuple[Path, Path, Path], key: str) -> int:
+    """``mcrt render --adaptive``: passes with active-pixel counts, EXR layers for
+    RGB, variance, standard error and sample counts, and a PNG heat map of the
+    sample counts. Ctrl-C and resume work as for fixed-spp renders."""
+    exr_path, png_path, heat_path = paths
+    resume_paths = _resume_paths(exr_path, key)
+    state = next((s for s in (adaptive.AdaptiveCheckpoint.load(p, key) for p in resume_paths)
+                  if s), None)
+    if state is not None:
+        log.info("resuming after adaptive pass %d", state.next_pass)
+    grid = film_grid_size(scene.sensors()[0].film())
+    pixels = int(grid[0]) * int(grid[1])
+
+    def report(record) -> None:
+        if args.quiet:
+            return
+        sizes = "+".join(map(str, record.batch_sizes))
+        print(f"pass {record.index:2d}  active {record.active_pixels:9,d} px "
+              f"({100.0 * record.active_pixels / pixels:5.1f}%)  batch {sizes:>14s}  "
+              f"samples {record.samples:11,d}  {record.seconds:6.2f} s  "
+              f"converged {100.0 * record.converged_pixels / pixels:5.1f}%", flush=True)
+
+    def write(result, extra: dict) -> None:
+        meta = {**metadata, **result.summary(), "sampler": result.sampler, **extra}
+        meta.pop("render_seconds", None)  # no timings: equal renders, equal files
+        write_exr(exr_path, result.layers(), meta)
+        write_png(png_path, result.rgb)
+        adaptive.write_heatmap(heat_path, result.spp, settings.min_spp, settings.max_spp)
+
+    try:
+        result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
+                                          on_pass=report, resume=state)
+    except adaptive.AdaptiveInterrupted as stop:
+        kept = _keep(stop.checkpoint, key, resume_paths)
+        done = stop.checkpoint.next_pass
+        if stop.partial is not None:
+            write(stop.partial, {"partial": 1})
+            print(f"interrupted after {done} adaptive passes ({stop.partial.samples} samples): "
+                  f"wrote the partial image to {exr_path}, {png_path} and {heat_path}")
+        else:
+            print("interrupted before the first pass finished: nothing written")
+        if kept is not None and done:
+            print(f"checkpoint {kept}: run the same command again to resume")
+        return 130
+    write(result, {})
+    for path in resume_paths:
+        path.unlink(missing_ok=True)
+    height, width = result.image.shape[:2]
+    spp = result.spp
+    rate = result.samples / result.seconds / 1e6 if result.seconds > 0 else float("inf")
+    print(f"sampler {name}  adaptive  spp mean {spp.mean():.1f} (min {spp.min()}, max "
+          f"{spp.max()})  {width}x{height}  passes {len(result.passes)}  "
+          f"time {result.seconds:.2f} s  {rate:.2f} M samples/s")
+    if result.nonfinite.sum():
+        print(f"non-finite samples: {int(result.nonfinite.sum())} (NaN/Inf, left out; "
+              f"{int((result.nonfinite > 0).sum())} pixels affected, see layer 'nonfinite')")
+    print(f"wrote {exr_path}, {png_path} and {heat_path} (sample counts, log scale "
+          f"{settings.min_spp}..{settings.max_spp})")
+    return 0
+
+
+def _keep(state, key: str, paths: tuple[Path, ...]) -> Path | None:
+    """Save a checkpoint next to the output, else in the cache; None if neither works."""
+    if state is None:
+        return None
+    for path in paths:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            state.save(path, key)
+            return path
+        except (McrtError, OSError) as error:
+            log.warning("cannot save the checkpoint to %s (%s)", path, error)
+    return None
+
+
+def render_key(scene: str, params: dict[str, str], overrides: dict[str, bool], sampler: str,
+               spp: int, seed: int, passes: int | None, **settings) -> str:
+    """Identity of a render for resuming: the scene's content and every setting."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from ..analysis.reference import scene_digest
+
+    payload = {"scene": scene_digest(scene, params), "params": sorted(params.items()),
+               "effects": sorted(overrides.items()), "sampler": sampler, "spp": spp,
+               "seed": seed, "passes": passes, "settings": settings, "variant": mi.variant(),
+               "versions": [mi.__version__, dr.__version__, __version__]}
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def check_free_space(directory: Path, scene) -> None:
+    """Refuse to start when the output directory cannot hold the results.
+
+    Needed: the float32 EXR (uncompressed upper bound), the PNG and, for a
+    resumable render, a float64 checkpoint of the film.
+    """
+    film = scene.sensors()[0].film()
+    width, height = (int(v) for v in film_grid_size(film))
+    channels = 5
+    needed = width * height * (channels * 4 + 4 + channels * 8) + (1 << 20)
+    free = shutil.disk_usage(directory).free
+    if free < needed:
+        raise McrtError(f"not enough free space in {directory}: the outputs need about "
+                        f"{needed / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")

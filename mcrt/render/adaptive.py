@@ -77,12 +77,11 @@ toward the pixel's budget (a pixel producing only NaN stops at ``max_spp``).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from statistics import NormalDist
 
 import drjit as dr
@@ -94,7 +93,8 @@ from ..analysis.statistics import PixelStats, chan_merge
 from ..errors import McrtError
 from ..samplers._hash import hash_keys_int
 from ..samplers.base import is_mcrt_sampler
-from .passes import pass_moments, sampling_integrator
+from .passes import pass_moments, sampling_integrator, sequential_block_sums
+from .scene import quiet_sampler_warnings
 from .trace import film_grid_size, pixel_of_index, trace
 
 log = logging.getLogger(__name__)
@@ -205,7 +205,6 @@ class AdaptiveRender:
     #: Pixels that pass the error test at the end (the others ran out of
     #: budget, or were only refined as neighbours), (H, W) bool.
     converged: np.ndarray
-    extra: dict = field(default_factory=dict)
 
     @property
     def samples(self) -> int:
@@ -313,24 +312,6 @@ def dilate(image: np.ndarray, radius: int) -> np.ndarray:
 
 # -- batch sizes ---------------------------------------------------------------
 
-@contextlib.contextmanager
-def _quiet_sampler_logs():
-    """Silence sample-count rounding notes while probing supported counts."""
-    logger = mi.logger() if hasattr(mi, "logger") else mi.Thread.thread().logger()
-    level = logger.log_level() if logger is not None else None
-    ours = logging.getLogger("mcrt.samplers")
-    previous = ours.level
-    ours.setLevel(logging.ERROR)
-    if logger is not None:
-        logger.set_log_level(mi.LogLevel.Error)
-    try:
-        yield
-    finally:
-        ours.setLevel(previous)
-        if logger is not None:
-            logger.set_log_level(level)
-
-
 def _count_for(sampler: mi.Sampler, request: int) -> int | None:
     """Sample count the sampler uses for ``request`` (None if it refuses)."""
     try:
@@ -346,7 +327,7 @@ def batch_ladder(sampler: mi.Sampler, min_spp: int, max_spp: int) -> tuple[int, 
     The first entry is the sampler's count for ``min_spp`` (rounded *up* if the
     sampler must, e.g. ``jittered`` 20 -> 25); all entries are <= ``max_spp``.
     """
-    with _quiet_sampler_logs():
+    with quiet_sampler_warnings():
         first = _count_for(sampler, min_spp)
         if first is None:
             raise McrtError(f"adaptive: the sampler cannot draw min_spp = {min_spp} samples")
@@ -533,6 +514,69 @@ class _Accumulator:
     def stats(self) -> PixelStats:
         return PixelStats(self.count, self.mean, self.m2, self.nonfinite)
 
+    FIELDS = ("count", "mean", "m2", "nonfinite", "traced", "sub_sum", "sub_count")
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Copies of every accumulator array (a snapshot)."""
+        return {name: getattr(self, name).copy() for name in self.FIELDS}
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        for name in self.FIELDS:
+            mine = getattr(self, name)
+            if arrays[name].shape != mine.shape:
+                raise McrtError("the saved adaptive render does not match this scene")
+            mine[...] = arrays[name]
+
+
+@dataclass
+class AdaptiveCheckpoint:
+    """The engine's state after a finished pass (see :func:`render_adaptive`)."""
+
+    arrays: dict[str, np.ndarray]  # accumulator fields, plus "active" and "batch"
+    leader: int
+    next_pass: int
+    records: list[dict]
+    seconds: float
+
+    def save(self, path, key: str) -> None:
+        """Write atomically as ``.npz`` (``key`` identifies the render)."""
+        import json
+
+        from ..io.atomic import atomic_path
+
+        scalars = json.dumps({"key": key, "leader": self.leader, "next_pass": self.next_pass,
+                              "records": self.records, "seconds": self.seconds})
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, scalars=np.array(scalars), **self.arrays)
+
+    @classmethod
+    def load(cls, path, key: str) -> AdaptiveCheckpoint | None:
+        """The checkpoint at ``path`` if readable and made for ``key``, else None."""
+        import json
+        import zipfile
+
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                scalars = json.loads(str(data["scalars"]))
+                if scalars.get("key") != key:
+                    return None
+                arrays = {name: data[name] for name in (*_Accumulator.FIELDS, "active", "batch")}
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+            return None
+        return cls(arrays=arrays, leader=int(scalars["leader"]),
+                   next_pass=int(scalars["next_pass"]), records=list(scalars["records"]),
+                   seconds=float(scalars["seconds"]))
+
+
+class AdaptiveInterrupted(Exception):
+    """Ctrl-C during :func:`render_adaptive`: the passes finished so far, developed
+    (``partial``; None before the first pass ends) and a checkpoint to resume."""
+
+    def __init__(self, partial: AdaptiveRender | None, checkpoint: AdaptiveCheckpoint) -> None:
+        super().__init__("adaptive render interrupted")
+        self.partial = partial
+        self.checkpoint = checkpoint
+
 
 def _sampler_label(sampler: mi.Sampler) -> str:
     from .scene import sampler_name
@@ -545,7 +589,8 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                     sensor: int | mi.Sensor = 0,
                     integrator: mi.SamplingIntegrator | None = None,
                     on_pass: Callable[[PassRecord], None] | None = None,
-                    on_samples: Callable[..., None] | None = None) -> AdaptiveRender:
+                    on_samples: Callable[..., None] | None = None,
+                    resume: AdaptiveCheckpoint | None = None) -> AdaptiveRender:
     """Render ``scene`` adaptively (see the module docstring).
 
     ``sampler`` defaults to the sensor's (its type and parameters are used, not
@@ -554,6 +599,11 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     integrator, and its settings unless ``settings`` is given). ``on_pass(record)`` runs after
     each pass; ``on_samples(pass_index, pixel_ids, position, rgb)`` receives
     every traced wavefront as numpy arrays (for tests and visualisation).
+
+    Ctrl-C raises :class:`AdaptiveInterrupted` with the passes finished so far
+    (a pass in flight is dropped whole); ``resume`` continues from its
+    checkpoint. Every wavefront's samples depend only on (seed, pass, pixel), so
+    a resumed render equals an uninterrupted one.
     """
     sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     if integrator is None:
@@ -584,58 +634,91 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     batch = np.full(pixels, first, dtype=np.int64)
     leader = 0  # samples of a pixel that was active in every pass so far
     records: list[PassRecord] = []
+    k, seconds_before = 0, 0.0
+    if resume is not None:
+        acc.restore(resume.arrays)
+        active, batch = resume.arrays["active"].astype(np.int64), resume.arrays["batch"]
+        leader, k, seconds_before = resume.leader, resume.next_pass, resume.seconds
+        records = [PassRecord(**{**r, "batch_sizes": tuple(r["batch_sizes"])})
+                   for r in resume.records]
 
     dr.sync_thread()
     start = time.perf_counter()
-    k = 0
-    while active.size:
-        pass_start = time.perf_counter()
-        spent = int(acc.traced.sum())
-        sizes = np.unique(batch[active])
-        lanes = 0
-        bad_total = 0
-        for m in sizes.tolist():
-            group = active[batch[active] == m]
-            per_chunk = max(1, settings.max_lanes // m)
-            for c, lo in enumerate(range(0, group.size, per_chunk)):
-                ids = group[lo:lo + per_chunk]
-                one_wavefront = k == 0 and ids.size == pixels
-                wave_seed = seed if ours or one_wavefront else hash_keys_int(seed, k, m, c)
-                bad_total += _trace_wavefront(scene, sensor_obj, sampler, integrator, film,
-                                              ids, m, k, wave_seed, ours, first, s,
-                                              has_alpha, acc, on_samples)
-                lanes += ids.size * m
-        if int(acc.traced.sum()) <= spent:  # budgets only grow: the loop terminates
-            raise McrtError("adaptive: a pass spent no samples; this is a bug")
-        # Error test over the whole image, dilation, and next pass's batches.
-        mean_y, se_y = luminance_error(acc.stats())
-        ratio = error_ratio(mean_y, se_y, acc.count, settings)
-        failing = ratio > 1.0
-        # Every active pixel gets the pass's batch size (less only where the
-        # budget is nearly spent): one wavefront per pass, and a pixel that
-        # becomes active late - typically a neighbour of a failing pixel - is
-        # refined at the failing pixel's rate at once.
-        leader += int(sizes.max())
-        step = pass_batch_size(leader, ladder, settings)
-        batch = np.minimum(step, budget_batches(acc.traced, ladder, settings.max_spp))
-        # Only pixels that can still be refined spread activity: a pixel that spent
-        # its budget no longer keeps its neighbours busy.
-        refinable = batch > 0
-        wanted = dilate((failing & refinable).reshape(height, width), settings.dilation)
-        active_next = np.flatnonzero(wanted.ravel() & refinable)
-        dr.sync_thread()
-        record = PassRecord(index=k, active_pixels=int(active.size), samples=lanes,
-                            batch_sizes=tuple(sizes.tolist()),
-                            seconds=time.perf_counter() - pass_start,
-                            converged_pixels=int(pixels - failing.sum()),
-                            nonfinite=bad_total)
-        records.append(record)
-        if on_pass is not None:
-            on_pass(record)
-        active = active_next
-        k += 1
+
+    def snapshot() -> AdaptiveCheckpoint:
+        return AdaptiveCheckpoint(
+            arrays={**acc.arrays(), "active": active.copy(), "batch": batch.copy()},
+            leader=leader, next_pass=k, records=[asdict(r) for r in records],
+            seconds=seconds_before + time.perf_counter() - start)
+
+    def finish(state: AdaptiveCheckpoint | None = None) -> AdaptiveRender:
+        if state is not None:
+            acc.restore(state.arrays)
+        return _result(film, acc, width, height, s, settings, records[:len(state.records)]
+                       if state is not None else records, sampler, ladder, has_alpha,
+                       seconds_before + time.perf_counter() - start)
+
+    saved = snapshot()
+    try:
+        while active.size:
+            pass_start = time.perf_counter()
+            spent = int(acc.traced.sum())
+            sizes = np.unique(batch[active])
+            lanes = 0
+            bad_total = 0
+            for m in sizes.tolist():
+                group = active[batch[active] == m]
+                per_chunk = max(1, settings.max_lanes // m)
+                for c, lo in enumerate(range(0, group.size, per_chunk)):
+                    ids = group[lo:lo + per_chunk]
+                    one_wavefront = k == 0 and ids.size == pixels
+                    wave_seed = seed if ours or one_wavefront else hash_keys_int(seed, k, m, c)
+                    bad_total += _trace_wavefront(scene, sensor_obj, sampler, integrator, film,
+                                                  ids, m, k, wave_seed, ours, first, s,
+                                                  has_alpha, acc, on_samples)
+                    lanes += ids.size * m
+            if int(acc.traced.sum()) <= spent:  # budgets only grow: the loop terminates
+                raise McrtError("adaptive: a pass spent no samples; this is a bug")
+            # Error test over the whole image, dilation, and next pass's batches.
+            mean_y, se_y = luminance_error(acc.stats())
+            ratio = error_ratio(mean_y, se_y, acc.count, settings)
+            failing = ratio > 1.0
+            # Every active pixel gets the pass's batch size (less only where the
+            # budget is nearly spent): one wavefront per pass, and a pixel that
+            # becomes active late - typically a neighbour of a failing pixel - is
+            # refined at the failing pixel's rate at once.
+            leader += int(sizes.max())
+            step = pass_batch_size(leader, ladder, settings)
+            batch = np.minimum(step, budget_batches(acc.traced, ladder, settings.max_spp))
+            # Only pixels that can still be refined spread activity: a pixel that spent
+            # its budget no longer keeps its neighbours busy.
+            refinable = batch > 0
+            wanted = dilate((failing & refinable).reshape(height, width), settings.dilation)
+            active_next = np.flatnonzero(wanted.ravel() & refinable)
+            dr.sync_thread()
+            record = PassRecord(index=k, active_pixels=int(active.size), samples=lanes,
+                                batch_sizes=tuple(sizes.tolist()),
+                                seconds=time.perf_counter() - pass_start,
+                                converged_pixels=int(pixels - failing.sum()),
+                                nonfinite=bad_total)
+            records.append(record)
+            if on_pass is not None:
+                on_pass(record)
+            active = active_next
+            k += 1
+            saved = snapshot()
+    except KeyboardInterrupt:
+        partial = finish(saved) if saved.next_pass > 0 else None
+        raise AdaptiveInterrupted(partial, saved) from None
+    return finish()
+
+
+def _result(film, acc, width, height, s, settings, records, sampler, ladder, has_alpha,
+            seconds) -> AdaptiveRender:
+    """Develop the accumulated samples into an :class:`AdaptiveRender`."""
+    mean_y, se_y = luminance_error(acc.stats())
+    ratio = error_ratio(mean_y, se_y, acc.count, settings)
     image, spp, stats, crop = _develop(film, acc, width, height, s)
-    seconds = time.perf_counter() - start
     se_y = se_y.reshape(height, width)[crop]
     converged = (ratio <= 1.0).reshape(height, width)[crop]
     nonfinite = int(stats.nonfinite.sum())
@@ -681,18 +764,28 @@ def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, 
     # Sub-pixel of every lane among the wavefront's ids.size * s^2 sub-pixels.
     key = (lane // m) * (s * s) + sub.y * s + sub.x
     dr.eval(values, finite, key, inside if on_samples is not None else None)  # the trace
-    # Separate small kernels: atomics inside the trace kernel were slower (lanes of
-    # one pixel are adjacent and collide in the same sub-pixels).
-    cells = ids.size * s * s
-    sub_count = dr.zeros(mi.UInt32, cells)
-    dr.scatter_reduce(dr.ReduceOp.Add, sub_count, mi.UInt32(1), key, finite)
-    sub_sums = []
-    for v in values:
-        total = dr.zeros(mi.Float64, cells)
-        dr.scatter_reduce(dr.ReduceOp.Add, total, mi.Float64(v), key, finite)
-        sub_sums.append(total)
+    # Sub-pixel sums and counts per pixel, looping over each pixel's m lanes in
+    # order: deterministic (no atomics) and one pass over the lanes.
+    s2, n_values = s * s, len(values)
+
+    def contributions(lane: mi.UInt32) -> list[mi.Float]:
+        cell = dr.gather(mi.UInt32, key, lane) % s2
+        keep = dr.gather(mi.Bool, finite, lane)
+        vals = [dr.gather(mi.Float, v, lane) for v in values]
+        out = []
+        for j in range(s2):
+            hit = keep & (cell == j)
+            out += [dr.select(hit, v, 0.0) for v in vals] + [dr.select(hit, 1.0, 0.0)]
+        return out
+
+    sums = sequential_block_sums(ids.size, m, contributions, s2 * (n_values + 1))
+    per_cell = [sums[j * (n_values + 1):(j + 1) * (n_values + 1)] for j in range(s2)]
+    # Cell-major like the Accumulator's (pixel, sub-pixel) layout.
+    sub_count = np.stack([np.array(c[-1], dtype=np.float64) for c in per_cell], -1)
+    sub_sums = [np.stack([np.array(c[i], dtype=np.float64) for c in per_cell], -1)
+                for i in range(n_values)]
     count, means, m2, bad = pass_moments(rgb, m)
-    dr.eval(sub_count, sub_sums, count, means, m2, bad)
+    dr.eval(count, means, m2, bad)
     acc.add(ids, m, count, means, m2, bad, sub_count, sub_sums)
     if on_samples is not None:
         on_samples(k, np.repeat(ids, m), np.array(inside, dtype=np.float64).T,
@@ -817,44 +910,3 @@ def cli_settings(args, scene: mi.Scene, plan=None) -> AdaptiveSettings | None:
     if "max_spp" not in given and getattr(args, "spp", None):
         given["max_spp"] = args.spp
     return AdaptiveSettings(**{**asdict(base), **given}).check()
-
-
-def run_cli_render(args, scene: mi.Scene, sampler: mi.Sampler, name: str,
-                   settings: AdaptiveSettings, stem, metadata: dict) -> int:
-    """The adaptive branch of ``mcrt render``: render, print passes, write outputs."""
-    from ..cli._common import check_output_files
-    from ..io import write_exr, write_png
-
-    exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
-    heat_path = stem.with_name(stem.name + "_spp.png")
-    check_output_files(exr_path, png_path, heat_path)
-    grid = film_grid_size(scene.sensors()[0].film())
-    pixels = int(grid[0]) * int(grid[1])
-    quiet = getattr(args, "quiet", False)
-
-    def report(record: PassRecord) -> None:
-        if quiet:
-            return
-        sizes = "+".join(map(str, record.batch_sizes))
-        print(f"pass {record.index:2d}  active {record.active_pixels:9,d} px "
-              f"({100.0 * record.active_pixels / pixels:5.1f}%)  batch {sizes:>14s}  "
-              f"samples {record.samples:11,d}  {record.seconds:6.2f} s  "
-              f"converged {100.0 * record.converged_pixels / pixels:5.1f}%", flush=True)
-
-    result = render_adaptive(scene, sampler, settings, seed=args.seed, on_pass=report)
-    metadata = {**metadata, **result.summary(), "sampler": result.sampler}
-    write_exr(exr_path, result.layers(), metadata)
-    write_png(png_path, result.rgb)
-    write_heatmap(heat_path, result.spp, settings.min_spp, settings.max_spp)
-    height, width = result.image.shape[:2]
-    spp = result.spp
-    rate = result.samples / result.seconds / 1e6 if result.seconds > 0 else float("inf")
-    print(f"sampler {name}  adaptive  spp mean {spp.mean():.1f} (min {spp.min()}, max "
-          f"{spp.max()})  {width}x{height}  passes {len(result.passes)}  "
-          f"time {result.seconds:.2f} s  {rate:.2f} M samples/s")
-    if result.nonfinite.sum():
-        print(f"NaN/Inf samples: {int(result.nonfinite.sum())} in "
-              f"{int((result.nonfinite > 0).sum())} pixels (left out, see layer 'nonfinite')")
-    print(f"wrote {exr_path}, {png_path} and {heat_path} (sample counts, log scale "
-          f"{settings.min_spp}..{settings.max_spp})")
-    return 0

@@ -17,10 +17,15 @@ Two accumulators share that loop:
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
+import threading
 import time
-from collections.abc import Callable
+import zipfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -28,7 +33,9 @@ import numpy as np
 
 from ..analysis.statistics import PixelStats
 from ..errors import McrtError
+from ..samplers._hash import hash_keys_int
 from ..samplers._stratified import split_sample
+from ..samplers.base import is_mcrt_sampler
 from .trace import film_grid_size, pixel_of_index, trace
 
 #: Default cap on lanes per pass: big enough that typical renders run in one
@@ -56,6 +63,7 @@ class FilmRender:
     seconds: float  # wall time of the passes, synchronised (kernel compilation included)
     pixels: int
     nonfinite: np.ndarray | None = None  # (grid height, grid width) samples left out
+    checkpoint: FilmCheckpoint | None = None  # the film's sums, to develop again later
 
     @property
     def nonfinite_samples(self) -> int:
@@ -114,6 +122,102 @@ def _seeded_lanes(film: mi.Film, sampler: mi.Sampler, seed: int, pixels: int, gr
     return pixel_of_index(film, pixel_index), pixel_index
 
 
+def sequential_block_sums(blocks: int, size: int,
+                          contributions: Callable[[mi.UInt32], list[mi.Float]],
+                          outputs: int) -> list[mi.Float]:
+    """Per block of ``size`` consecutive lanes: the sums of ``contributions(lane)``.
+
+    One kernel over the ``blocks`` blocks; each loops over its lanes in order, so
+    the float sums are the same whatever the thread count (unlike atomic
+    scatter-adds) and many outputs cost one pass over the lanes (unlike one
+    ``dr.block_sum`` per output). ``contributions`` gathers what it needs from
+    lane-indexed arrays and returns ``outputs`` values per lane.
+    """
+    first = dr.arange(mi.UInt32, blocks) * size
+
+    def body(k, *sums):
+        return (k + 1, *(total + value
+                         for total, value in zip(sums, contributions(first + k))))
+
+    state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float, blocks)] * outputs),
+                          lambda k, *sums: k < size, body)
+    result = list(state[1:])
+    dr.eval(result)
+    return result
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Hold back Ctrl-C (SIGINT) until the block is done, then raise it.
+
+    Used to commit a pass's results as one step. Outside the main thread
+    (where Python delivers signals) this is a no-op.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+@dataclass
+class FilmCheckpoint:
+    """Everything needed to finish an interrupted :func:`render_film` later.
+
+    ``accum`` holds the float64 filter-weighted sums of the film's block (the
+    weight channel included), ``passes_done`` of ``passes`` passes, ``seconds``
+    the render time spent so far.
+    """
+
+    accum: np.ndarray
+    nonfinite: np.ndarray
+    passes_done: int
+    passes: int
+    spp: int
+    seed: int
+    seconds: float
+
+    def save(self, path: Path, key: str) -> None:
+        """Write atomically as ``.npz`` (``key`` identifies the render)."""
+        from ..io.atomic import atomic_path
+
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, key=np.array(key), accum=self.accum, nonfinite=self.nonfinite,
+                     counters=np.array([self.passes_done, self.passes, self.spp, self.seed]),
+                     seconds=np.array(self.seconds))
+
+    @classmethod
+    def load(cls, path: Path, key: str) -> FilmCheckpoint | None:
+        """The checkpoint at ``path`` if it exists, is readable and belongs to ``key``."""
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if str(data["key"]) != key:
+                    return None
+                done, passes, spp, seed = (int(v) for v in data["counters"])
+                state = cls(accum=data["accum"].astype(np.float64),
+                            nonfinite=data["nonfinite"].astype(np.int64), passes_done=done,
+                            passes=passes, spp=spp, seed=seed, seconds=float(data["seconds"]))
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+            return None
+        return state if 0 < state.passes_done <= state.passes else None
+
+
+class RenderInterrupted(Exception):
+    """Ctrl-C during :func:`render_film`: the passes finished so far, developed
+    (``partial``, its ``spp`` counts only those passes), and a checkpoint to resume."""
+
+    def __init__(self, partial: FilmRender | None, checkpoint: FilmCheckpoint) -> None:
+        super().__init__("render interrupted")
+        self.partial = partial
+        self.checkpoint = checkpoint
+
+
 class _FilmSplatter:
     """Deterministic splatting of pixel-major samples into the film's block.
 
@@ -141,6 +245,7 @@ class _FilmSplatter:
         self.channels = block.channel_count()
         self.accum = np.zeros((int(ext[1]), int(ext[0]), self.channels), np.float64)
         self.nonfinite = np.zeros(len(pixels_xy), np.int64)
+        self.passes_done = 0
         self.pixels_xy = pixels_xy  # (pixels, 2) film coordinates of the sampled grid
         rfilter = film.rfilter()
         self.box = rfilter.is_box_filter()
@@ -149,78 +254,97 @@ class _FilmSplatter:
                         for dx in range(-reach, reach + 1)]
 
     def add(self, pixel: mi.Vector2i, position: mi.Point2f, values: list[mi.Float]) -> None:
-        """Accumulate one evaluated pass (lanes pixel-major, ``group`` per pixel)."""
+        """Accumulate one evaluated pass (lanes pixel-major, ``group`` per pixel).
+
+        The pass is summed into a separate array and committed at the end, with
+        Ctrl-C deferred, so an interrupt never leaves half a pass in the sums.
+        """
         finite = dr.isfinite(values[0])
         for v in values[1:]:
             finite &= dr.isfinite(v)
         kept = [dr.select(finite, v, 0.0) for v in values]
         bad = dr.select(finite, 0.0, 1.0)
         dr.eval(kept, bad)
-        self.nonfinite += np.array(dr.block_sum(bad, self.group), dtype=np.int64)
+        pass_bad = np.array(dr.block_sum(bad, self.group), dtype=np.int64)
         if self.box:  # the sample counts for its own pixel only, with weight 1
             sums = [[dr.block_sum(v, self.group) for v in kept]]
         else:
             sums = self._filtered_sums(pixel, position, kept)
+        pass_accum = np.zeros_like(self.accum)
         for (dx, dy), per_channel in zip(self.offsets, sums):
             block = np.stack([np.array(v, dtype=np.float64) for v in per_channel], axis=-1)
             target = self.pixels_xy + (dx, dy) - self.origin
             inside = ((target >= 0) & (target < (self.accum.shape[1], self.accum.shape[0]))).all(1)
-            self.accum[target[inside, 1], target[inside, 0]] += block[inside]
+            pass_accum[target[inside, 1], target[inside, 0]] += block[inside]
+        with deferred_interrupts():
+            self.accum += pass_accum
+            self.nonfinite += pass_bad
+            self.passes_done += 1
 
     def _filtered_sums(self, pixel: mi.Vector2i, position: mi.Point2f,
                        kept: list[mi.Float]) -> list[list[mi.Float]]:
         """Per pixel and offset ``d``: the filter-weighted sums of its samples for
-        the pixel ``d`` away. One kernel over pixels, looping over each pixel's
-        samples in order (the filter is separable: ``w = w(dx) w(dy)``)."""
+        the pixel ``d`` away (the filter is separable: ``w = w(dx) w(dy)``)."""
         rfilter, group = self.film.rfilter(), self.group
-        count = len(self.pixels_xy)
-        first = dr.arange(mi.UInt32, count) * group
+        first = dr.arange(mi.UInt32, len(self.pixels_xy)) * group
         centre = dr.gather(mi.Point2f, mi.Point2f(pixel) + 0.5, first)
         reach = sorted({dx for dx, _ in self.offsets})
-        n_sums = len(self.offsets) * len(kept)
 
-        def body(k, *sums):
-            lane = first + k
+        def contributions(lane: mi.UInt32) -> list[mi.Float]:
             pos = dr.gather(mi.Point2f, position, lane)
             vals = [dr.gather(mi.Float, v, lane) for v in kept]
             wx = {d: rfilter.eval(centre.x + d - pos.x) for d in reach}
             wy = {d: rfilter.eval(centre.y + d - pos.y) for d in reach}
-            out, i = [], 0
-            for dx, dy in self.offsets:
-                w = wx[dx] * wy[dy]
-                for v in vals:
-                    out.append(dr.fma(v, w, sums[i]))
-                    i += 1
-            return (k + 1, *out)
+            return [v * (wx[dx] * wy[dy]) for dx, dy in self.offsets for v in vals]
 
-        state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float, count)] * n_sums),
-                              lambda k, *sums: k < group, body)
-        flat = list(state[1:])
-        dr.eval(flat)
+        flat = sequential_block_sums(len(self.pixels_xy), group, contributions,
+                                     len(self.offsets) * len(kept))
         c = len(kept)
         return [flat[i * c:(i + 1) * c] for i in range(len(self.offsets))]
 
     def develop(self) -> mi.TensorXf:
-        """Hand the sums to the film (it normalises by the weight channel)."""
+        """Hand the sums to a cleared film (it normalises by the weight channel)."""
+        self.film.clear()
         block = mi.ImageBlock(mi.TensorXf(self.accum.astype(np.float32)), self.offset,
                               self.film.rfilter(), border=self.border > 0)
         self.film.put_block(block)
         return self.film.develop()
 
+    def checkpoint(self, spp: int, passes: int, seed: int, seconds: float) -> FilmCheckpoint:
+        return FilmCheckpoint(accum=self.accum.copy(), nonfinite=self.nonfinite.copy(),
+                              passes_done=self.passes_done, passes=passes, spp=spp, seed=seed,
+                              seconds=seconds)
+
+    def restore(self, state: FilmCheckpoint) -> None:
+        if state.accum.shape != self.accum.shape or state.nonfinite.shape != self.nonfinite.shape:
+            raise McrtError("the saved partial render does not match this film")
+        self.accum[...] = state.accum
+        self.nonfinite[...] = state.nonfinite
+        self.passes_done = state.passes_done
+
 
 def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
                 seed: int = 0, sensor: int = 0, progress: bool = False,
-                max_lanes: int = MAX_LANES_PER_PASS, passes: int | None = None,
-                on_pass: Callable[[int, int], None] | None = None) -> FilmRender:
+                max_lanes: int | None = None, passes: int | None = None,
+                on_pass: Callable[[int, int], None] | None = None,
+                resume: FilmCheckpoint | None = None) -> FilmRender:
     """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
 
     Returns the developed film as a numpy array together with the effective
     sample count (samplers may round it), number of passes, wall time and the
     per-pixel count of non-finite samples (left out of the image, see
     :class:`_FilmSplatter`; the image is bit-identical across runs).
-    ``passes`` forces the number of passes (it must divide the sample count);
-    ``on_pass(index, count)`` runs before each pass is traced (e.g. to move
-    geometry for a motion-blur sub-frame).
+    ``max_lanes`` caps the samples of one pass (default
+    :data:`MAX_LANES_PER_PASS`); ``passes`` forces the number of passes (it must
+    divide the sample count); ``on_pass(index, count)`` runs before each pass is
+    traced (e.g. to move geometry for a motion-blur sub-frame).
+
+    Ctrl-C raises :class:`RenderInterrupted` with the passes finished so far;
+    ``resume`` continues from its checkpoint. mcrt's samplers continue their
+    exact sequences, so a resumed render is bit-identical to an uninterrupted
+    one; Mitsuba's samplers (whose random state lives in C++) continue with a
+    seed derived from ``(seed, passes done)`` instead, so resumed passes never
+    repeat earlier ones.
     """
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
@@ -232,40 +356,71 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
 
     grid = film_grid_size(film)
     pixels = int(grid[0]) * int(grid[1])
-    group = _pass_plan(pixels, spp, max_lanes, passes)
+    group = _pass_plan(pixels, spp, max_lanes or MAX_LANES_PER_PASS, passes)
     n_passes = spp // group
 
     film.prepare(integrator.aov_names())
     has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    pixel, _ = _seeded_lanes(film, sampler, seed, pixels, group)
     grid_xy = pixel_of_index(film, dr.arange(mi.UInt32, pixels))
     splatter = _FilmSplatter(film, np.array(grid_xy, dtype=np.int64).T.reshape(-1, 2), group)
+    seconds_before = 0.0
+    if resume is not None:
+        if (resume.spp, resume.passes, resume.seed) != (spp, n_passes, seed):
+            raise McrtError("the saved partial render was made with other settings")
+        splatter.restore(resume)
+        seconds_before = resume.seconds
+    pixel, _ = _seeded_lanes(film, sampler, _resume_seed(sampler, seed, splatter.passes_done),
+                             pixels, group)
+    if is_mcrt_sampler(sampler):
+        for _ in range(splatter.passes_done):
+            sampler.advance()  # counter-based: the exact next samples
 
-    bar = _progress_bar(n_passes, pixels * group, enabled=progress and n_passes > 1)
+    bar = _progress_bar(n_passes, pixels * group, enabled=progress and n_passes > 1,
+                        initial=splatter.passes_done)
     dr.sync_thread()
     start = time.perf_counter()
-    for index in range(n_passes):
-        if on_pass is not None:
-            on_pass(index, n_passes)
-        s = trace(scene, sensor_obj, sampler, integrator, pixel, spp)
-        values = [s.rgb.x, s.rgb.y, s.rgb.z]
-        values += [dr.select(s.valid, 1.0, 0.0), mi.Float(1.0)] if has_alpha else [mi.Float(1.0)]
-        values += s.aovs
-        sampler.advance()
-        sampler.schedule_state()
-        position = mi.Point2f(s.position)
-        dr.eval(values, position)  # one kernel: samples and the sampler's next state
-        splatter.add(pixel, position, values)
-        bar.update(1)
+
+    def result(image: mi.TensorXf) -> FilmRender:
+        array = np.array(image, dtype=np.float32)
+        done = splatter.passes_done
+        seconds = seconds_before + time.perf_counter() - start
+        return FilmRender(image=array, channels=channel_names(film, array.shape[-1]),
+                          spp=done * group, passes=done, seconds=seconds, pixels=pixels,
+                          nonfinite=splatter.nonfinite.reshape(int(grid[1]), int(grid[0])),
+                          checkpoint=splatter.checkpoint(spp, n_passes, seed, seconds))
+
+    try:
+        for index in range(splatter.passes_done, n_passes):
+            if on_pass is not None:
+                on_pass(index, n_passes)
+            s = trace(scene, sensor_obj, sampler, integrator, pixel, spp)
+            values = [s.rgb.x, s.rgb.y, s.rgb.z]
+            values += ([dr.select(s.valid, 1.0, 0.0), mi.Float(1.0)] if has_alpha
+                       else [mi.Float(1.0)])
+            values += s.aovs
+            sampler.advance()
+            sampler.schedule_state()
+            position = mi.Point2f(s.position)
+            dr.eval(values, position)  # one kernel: samples and the sampler's next state
+            splatter.add(pixel, position, values)
+            bar.update(1)
+    except KeyboardInterrupt:
+        bar.close()
+        partial = result(splatter.develop()) if splatter.passes_done else None
+        elapsed = seconds_before + time.perf_counter() - start
+        raise RenderInterrupted(partial, splatter.checkpoint(spp, n_passes, seed, elapsed)) \
+            from None
     image = splatter.develop()
     dr.sync_thread()
-    seconds = time.perf_counter() - start
     bar.close()
+    return result(image)
 
-    array = np.array(image, dtype=np.float32)
-    return FilmRender(image=array, channels=channel_names(film, array.shape[-1]), spp=spp,
-                      passes=n_passes, seconds=seconds, pixels=pixels,
-                      nonfinite=splatter.nonfinite.reshape(int(grid[1]), int(grid[0])))
+
+def _resume_seed(sampler: mi.Sampler, seed: int, passes_done: int) -> int:
+    """The seed to continue a render after ``passes_done`` passes (see render_film)."""
+    if passes_done == 0 or is_mcrt_sampler(sampler):
+        return seed
+    return hash_keys_int(seed, passes_done, 0x2E5)
 
 
 @dataclass
@@ -302,7 +457,7 @@ def pass_moments(rgb: mi.Color3f, group: int) -> tuple[mi.Float64, list[mi.Float
 
 
 def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, seed: int = 0,
-                 sensor: int = 0, progress: bool = False, max_lanes: int = 1 << 22,
+                 sensor: int = 0, progress: bool = False, max_lanes: int | None = None,
                  passes: int | None = None,
                  on_pass: Callable[[int, int], None] | None = None) -> StatsRender:
     """Render ``scene`` and return exact per-pixel sample moments (float64).
@@ -320,7 +475,7 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
     grid = film_grid_size(film)
     width, height = int(grid[0]), int(grid[1])
     pixels = width * height
-    group = _pass_plan(pixels, spp, max_lanes, passes)
+    group = _pass_plan(pixels, spp, max_lanes or MAX_LANES_PER_PASS, passes)
     n_passes = spp // group
     pixel, _ = _seeded_lanes(film, sampler, seed, pixels, group)
 
@@ -361,10 +516,10 @@ class _NoBar:
         pass
 
 
-def _progress_bar(passes: int, lanes: int, enabled: bool):
+def _progress_bar(passes: int, lanes: int, enabled: bool, initial: int = 0):
     if not enabled:
         return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(total=passes, unit="pass", desc="render", leave=False, dynamic_ncols=True,
-                postfix={"samples/pass": lanes})
+    return tqdm(total=passes, initial=initial, unit="pass", desc="render", leave=False,
+                dynamic_ncols=True, postfix={"samples/pass": lanes})

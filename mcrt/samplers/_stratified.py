@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from ._hash import hash_keys, mix32, unit_float
+from ._hash import hash_extend, mix32, unit_float
 from ._strata import (
     GOLDEN_FRAC_U32,
     R2_X_U32,
@@ -34,8 +34,9 @@ def split_sample(sample: mi.UInt32, n: int) -> tuple[mi.UInt32, mi.UInt32]:
 
 
 def epoch_key(dim_key: mi.UInt32, epoch: mi.UInt32) -> mi.UInt32:
-    """Key of one epoch of one (seed, pixel, dimension)."""
-    return hash_keys(dim_key, epoch)
+    """Key of one epoch of one (seed, pixel, dimension): the hash chain extended
+    (keys are already well mixed, so each extension costs one mix)."""
+    return hash_extend(dim_key, epoch)
 
 
 def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
@@ -44,7 +45,7 @@ def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
     epoch, rank = split_sample(sample, n)
     key = epoch_key(dim_key, epoch)
     cell = mi.permute_kensler(rank, n, key, active)
-    u = unit_float(hash_keys(key, rank))
+    u = unit_float(hash_extend(key, rank))
     t = jittered_offset(u, jitter, epoch_offset(epoch, GOLDEN_FRAC_U32))
     return place_in_stratum(cell, n, t)
 
@@ -57,7 +58,7 @@ def stratified_2d(dim_key: mi.UInt32, sample: mi.UInt32, k: int, jitter: float,
     key = epoch_key(dim_key, epoch)
     cell = mi.permute_kensler(rank, n, key, active)
     row, col = split_sample(cell, k)
-    h = hash_keys(key, rank)
+    h = hash_extend(key, rank)
     tx = jittered_offset(unit_float(h), jitter, epoch_offset(epoch, R2_X_U32))
     ty = jittered_offset(unit_float(mix32(h)), jitter, epoch_offset(epoch, R2_Y_U32))
     return mi.Point2f(place_in_stratum(col, k, tx), place_in_stratum(row, k, ty))

@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..errors import SamplerError
-from ._hash import hash_keys, mix32, unit_float
+from ._hash import hash_extend, mix32, unit_float
 from ._stratified import epoch_key, split_sample, stratified_1d
 from .base import McrtSampler
 from .poisson_tables import MAX_POINTS, load_tables
@@ -97,7 +97,7 @@ class PoissonDiskSampler(McrtSampler):
         epoch, rank = split_sample(sample, n)
         set_key = epoch_key(key, epoch)
         index = mi.permute_kensler(rank, n, set_key, active)
-        h = hash_keys(set_key, 0x9D15C)
+        h = hash_extend(set_key, 0x9D15C)
         table = (h & 0xFFFF) % n_tables
         point = table * n + index
         x = dr.gather(mi.Float, table_x, point, active)
