@@ -582,7 +582,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     return result(total, seconds, resumed=resumed)
 
 
-class ReferenceInterrupted(Exception):
+class ReferenceInterrupted(KeyboardInterrupt):
     """Ctrl-C during :func:`get_reference`: ``partial`` holds the passes merged
     so far (their state is in the cache, so the same call resumes)."""
 

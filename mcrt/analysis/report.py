@@ -16,6 +16,14 @@
   and their spread);
 * ``results.json`` - the configuration, environment, references, every cell
   with its per-seed values, and the fits (NaN written as ``null``).
+
+A partial result (an interrupted study, :attr:`StudyResult.partial`) is written
+the same way and marked in every file: ``"partial": true`` and a ``progress``
+record (cells done / total, the interrupted cell and its seeds done, the
+pending cells, how to resume) in results.json; a ``status`` column (done /
+interrupted / pending) with ``seeds_done`` in results.csv, pending cells as
+rows with empty values; a banner in report.html. Plots and slopes use the
+finished cells only.
 """
 
 from __future__ import annotations
@@ -34,7 +42,7 @@ from ..io.atomic import atomic_path
 from .aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, Z_THRESHOLD
 from .metrics import REL_MSE_EPSILON
 from .plots import new_figure, save_figure
-from .study import RESOLVED_FACTOR, StudyResult
+from .study import RESOLVED_FACTOR, StudyResult, cell_keys
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
@@ -44,6 +52,7 @@ CSV_COLUMNS = (
     "resolved", "rel_mse", "rel_mse_sd", "efficiency", "variance", "bias", "bias_low",
     "bias_high", "delta_e", "delta_e_sd", "aliasing_ratio", "aliasing_ratio_z",
     "aliasing_peak", "aliasing_peak_z", "aliasing", "nonfinite",
+    "status", "seeds_done", "seeds_total",
 )
 
 TIME_NOTE = (
@@ -112,6 +121,8 @@ def _clean(value):
 def results_json(result: StudyResult) -> dict:
     """Everything a study measured, as JSON-ready data."""
     return _clean({
+        "partial": result.partial,
+        "progress": result.progress(),
         "study": result.config.as_dict(),
         "environment": result.environment,
         "seconds_total": result.seconds,
@@ -137,12 +148,38 @@ def _csv_value(value) -> str:
     return str(value)
 
 
+def csv_rows(result: StudyResult) -> list[list[str]]:
+    """Rows of results.csv: every cell of the study in order; a cell not (yet)
+    measured has status ``pending`` (or ``interrupted``) and empty values."""
+    k = len(result.config.seeds)
+    done = {(c["scene"], c["sampler"], c["spp_requested"]): c for c in result.cells}
+    stop = result.interrupted or {}
+    plugin = {s.label: s for s in result.config.samplers}
+    rows = []
+    for scene, label, spp in [(c["scene"], c["sampler"], c["spp_requested"])
+                              for c in result.cells] + result.pending():
+        cell = done.get((scene, label, spp))
+        if cell is not None:
+            cell = {**cell, "status": "done", "seeds_done": len(cell["seeds"]), "seeds_total": k}
+            rows.append([_csv_value(cell[c]) for c in CSV_COLUMNS])
+            continue
+        running = (stop.get("scene"), stop.get("sampler"), stop.get("spp")) == (scene, label, spp)
+        known = {"scene": scene, "sampler": label, "plugin": plugin[label].name,
+                 "params": dict(plugin[label].params), "spp_requested": spp,
+                 "status": "interrupted" if running else "pending",
+                 "seeds_done": stop.get("seeds_done", 0) if running else 0, "seeds_total": k}
+        rows.append([_csv_value(known[c]) if c in known else "" for c in CSV_COLUMNS])
+    if result.partial:  # study order, done cells first would mislead: sort like the config
+        order = {key: i for i, key in enumerate(cell_keys(result.config))}
+        rows.sort(key=lambda r: order[(r[0], r[1], int(r[4]))])
+    return rows
+
+
 def write_results_csv(result: StudyResult, path: str | os.PathLike) -> None:
     with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(CSV_COLUMNS)
-        for cell in result.cells:
-            writer.writerow([_csv_value(cell[c]) for c in CSV_COLUMNS])
+        writer.writerows(csv_rows(result))
 
 
 def write_results_json(result: StudyResult, path: str | os.PathLike) -> None:
@@ -171,6 +208,8 @@ def plot_errors(ax, result: StudyResult, scene: str, axis: str, legend: bool = T
     colours = _colours(labels)
     for label in labels:
         cells = [c for c in result.cells if c["scene"] == scene and c["sampler"] == label]
+        if not cells:  # a partial study: nothing measured yet
+            continue
         x = np.array([c["spp"] if axis == "spp" else c["seconds"] for c in cells], float)
         y = np.array([c["mse_excess"] for c in cells], float)
         sd = np.array([c["mse_sd"] for c in cells], float)
@@ -203,17 +242,18 @@ def plot_errors(ax, result: StudyResult, scene: str, axis: str, legend: bool = T
     for a in (ax.xaxis, ax.yaxis):
         a.set_minor_formatter(NullFormatter())
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    if legend:
+    if legend and ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, title="sampler (slope)", title_fontsize=7)
 
 
 def error_figure(result: StudyResult, axis: str):
-    """Excess MSE against ``axis`` ("spp" or "seconds"), one panel per scene."""
-    n = len(result.config.scenes)
+    """Excess MSE against ``axis`` ("spp" or "seconds"), one panel per scene
+    (with a reference: all of them unless the study was interrupted)."""
+    n = len(result.scenes)
     fig = new_figure(4.6 * n + 1.8, 4.0)
     axes = fig.subplots(1, n, squeeze=False)[0]
-    for ax, scene in zip(axes, result.config.scenes):
-        plot_errors(ax, result, scene.name, axis)
+    for ax, scene in zip(axes, result.scenes):
+        plot_errors(ax, result, scene, axis)
     return fig
 
 
@@ -223,7 +263,10 @@ def summary_figure(result: StudyResult, scene: str | None = None, columns: int =
     (default: the first) at the report's spp, each rendered pixel exactly one
     figure pixel (or a ``zoom x zoom`` block)."""
     config = result.config
-    scene = scene or config.scenes[0].name
+    if scene is None:  # the first scene with images (a partial study may have none)
+        scene = next((s for s in result.scenes if any((s, x.label) in result.images
+                                                      for x in config.samplers)),
+                     result.scenes[0])
     labels = [s.label for s in config.samplers if (scene, s.label) in result.images]
     h, w = result.reference_images[scene].shape[:2]
     zoom = max(1, 240 // w)
@@ -231,19 +274,19 @@ def summary_figure(result: StudyResult, scene: str | None = None, columns: int =
     columns = max(1, min(columns, len(labels)))
     rows = -(-len(labels) // columns)
     gap, title_h, margin = 10, 30, 20
-    n = len(config.scenes)
+    n = len(result.scenes)
     width = max(columns * (pw + gap) + 2 * margin, 560 * n)
     plot_h = 400
     height = plot_h + 50 + rows * (ph + title_h + gap) + 80
     fig = new_figure(width / 100, height / 100)
     fig.set_layout_engine("none")
     panel = width / n
-    for i, spec in enumerate(config.scenes):
+    for i, name in enumerate(result.scenes):
         ax = fig.add_axes(((i * panel + 70) / width, (height - plot_h + 10) / height,
                            (panel - 100) / width, (plot_h - 50) / height))
-        plot_errors(ax, result, spec.name, "seconds")
+        plot_errors(ax, result, name, "seconds")
     cells = [result.images[(scene, label)] for label in labels]
-    lim = max(float(np.percentile(np.abs(c.error), 99.5)) for c in cells) or 1.0
+    lim = max((float(np.percentile(np.abs(c.error), 99.5)) for c in cells), default=0) or 1.0
     left = (width - columns * (pw + gap) + gap) / 2
     image = None
     for i, (label, c) in enumerate(zip(labels, cells)):
@@ -388,7 +431,9 @@ def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
         row = [html.escape(sampler.label),
                f"{_fmt(fit['slope_spp'])} &plusmn; {_fmt(fit['slope_spp_se'], 2)}",
                f"{_fmt(fit['slope_seconds'])} &plusmn; {_fmt(fit['slope_seconds_se'], 2)}"]
-        row += [_fmt(c["efficiency"]) for c in cells]
+        by_spp = {c["spp_requested"]: c for c in cells}
+        row += [_fmt(by_spp[spp]["efficiency"]) if spp in by_spp else "pending"
+                for spp in result.config.spp]
         aliased = [str(c["spp"]) for c in cells if c["aliasing"] == "aliased"]
         blue = [str(c["spp"]) for c in cells if c["aliasing"] == "blue"]
         verdict = []
@@ -410,6 +455,7 @@ th,td{border:1px solid #ccc;padding:3px 6px;text-align:right}
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
 table.cells td:nth-child(2){text-align:left}
 img{max-width:100%}.note{color:#555;font-size:13px;max-width:60em}
+.partial{background:#fff3cd;border:2px solid #d39e00;padding:0.6em 1em;max-width:60em}
 dl{font-size:13px}dt{font-weight:600;margin-top:0.4em}dd{margin-left:1.5em}
 code{background:#f6f6f6;padding:0 3px}
 """
@@ -418,10 +464,13 @@ code{background:#f6f6f6;padding:0 3px}
 def render_html(result: StudyResult, files: dict[str, Path]) -> str:
     config = result.config
     env = result.environment
+    mark = " (partial)" if result.partial else ""
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-             f"<title>mcrt study: {html.escape(config.name)}</title><style>{_CSS}</style>"
+             f"<title>mcrt study: {html.escape(config.name)}{mark}</title><style>{_CSS}</style>"
              f"</head><body>",
-             f"<h1>mcrt study: {html.escape(config.name)}</h1>"]
+             f"<h1>mcrt study: {html.escape(config.name)}{mark}</h1>"]
+    if result.partial:
+        parts.append(partial_banner(result))
     if config.description:
         parts.append(f"<p>{html.escape(config.description)}</p>")
     parts.append(
@@ -432,8 +481,14 @@ def render_html(result: StudyResult, files: dict[str, Path]) -> str:
         f"{html.escape(str(env['platform']))}, "
         f"{env['cpus']} CPUs, Mitsuba {env['mitsuba']}, Dr.Jit {env['drjit']}, "
         f"{html.escape(env['variant'])}, mcrt {env['mcrt']}, started {env['started']}.</p>")
+    if result.resumed_cells and not result.partial:
+        parts.append(f"<p class='note'>{result.resumed_cells} of {config.cells} cells were "
+                     "measured by an earlier, interrupted run and taken from its saved state "
+                     "(same configuration, scenes and versions); their times were taken then."
+                     "</p>")
     parts.append(f"<p class='note'><b>Time.</b> {html.escape(TIME_NOTE)}</p>")
-    parts.append(f"<p><img alt='summary' src='{_png_data(files['summary'])}'></p>")
+    if "summary" in files:
+        parts.append(f"<p><img alt='summary' src='{_png_data(files['summary'])}'></p>")
 
     parts.append("<h2>Convergence and efficiency</h2>")
     parts.append("<p class='note'>Slopes are least-squares fits of log MSE (reference noise "
@@ -441,13 +496,14 @@ def render_html(result: StudyResult, files: dict[str, Path]) -> str:
                  "resolved cells (&plusmn; one standard error). Efficiency is "
                  "1&nbsp;/&nbsp;(MSE &times; seconds): higher is better; a sampler twice as "
                  "efficient reaches the same error in half the time.</p>")
-    for scene in config.scenes:
+    for scene in result.scenes:
         spp_heads = [f"eff. @{s}" for s in config.spp]
-        parts.append(f"<h3>{html.escape(scene.name)}</h3>")
+        parts.append(f"<h3>{html.escape(scene)}</h3>")
         parts.append(_table(["sampler", "slope vs spp", "slope vs time", *spp_heads,
-                             "aliasing"], summary_rows(result, scene.name)))
-    parts.append(f"<p><img alt='error vs spp' src='{_png_data(files['error_vs_spp'])}'></p>")
-    parts.append(f"<p><img alt='error vs time' src='{_png_data(files['error_vs_time'])}'></p>")
+                             "aliasing"], summary_rows(result, scene)))
+    for key, alt in (("error_vs_spp", "error vs spp"), ("error_vs_time", "error vs time")):
+        if key in files:
+            parts.append(f"<p><img alt='{alt}' src='{_png_data(files[key])}'></p>")
 
     parts.append(f"<h2>Images at {config.image_spp} spp</h2>")
     parts.append("<p class='note'>Per sampler: the render (seed "
@@ -487,6 +543,13 @@ def render_html(result: StudyResult, files: dict[str, Path]) -> str:
             f"{_fmt(c['aliasing_ratio'])} ({_fmt(c['aliasing_ratio_z'], 2)})",
             f"{_fmt(c['aliasing_peak'])} ({_fmt(c['aliasing_peak_z'], 2)})",
             html.escape(c["aliasing"]), _fmt(c["efficiency"])])
+    stop = result.interrupted or {}
+    for scene, label, spp in result.pending():  # a partial study: what is missing
+        running = (stop.get("scene"), stop.get("sampler"), stop.get("spp")) == (scene, label, spp)
+        status = (f"interrupted ({stop['seeds_done']}/{stop['seeds_total']} seeds)" if running
+                  else "pending")
+        rows.append([html.escape(scene), html.escape(label), f"({spp})", status]
+                    + [""] * 11)
     parts.append(_table(["scene", "sampler", "spp", "time (ms)", "MSE", "MSE &minus; floor", "",
                          "relMSE", "variance", "bias [95%]", "&Delta;E00",
                          "alias ratio (z)", "peak (z)", "verdict", "efficiency"], rows,
@@ -500,6 +563,26 @@ def render_html(result: StudyResult, files: dict[str, Path]) -> str:
                  "<code>error_vs_spp.png</code>, <code>error_vs_time.png</code>.</p>")
     parts.append("</body></html>\n")
     return "\n".join(parts)
+
+
+def partial_banner(result: StudyResult) -> str:
+    """The report's notice that the study is incomplete, and how to resume it."""
+    total, done = result.config.cells, len(result.cells)
+    text = (f"<b>Partial result.</b> The study was interrupted after {done} of {total} "
+            f"cells ({len(result.config.seeds)} seeds each)")
+    stop = result.interrupted
+    if stop:
+        text += (f"; the cell being measured ({html.escape(stop['scene'])}, "
+                 f"{html.escape(stop['sampler'])}, {stop['spp']} spp) had "
+                 f"{stop['seeds_done']} of {stop['seeds_total']} seeds and is not included")
+    text += (". Slopes, efficiencies and plots use the finished cells only; the missing "
+             "ones are marked <i>pending</i>.")
+    if result.resumed_cells:
+        text += f" {result.resumed_cells} cells were taken from an earlier run's saved state."
+    if result.resume_command:
+        text += (" Run the same command again to resume (finished cells are not rendered "
+                 f"again): <code>{html.escape(result.resume_command)}</code>")
+    return f"<p class='partial'>{text}</p>"
 
 
 def report_files(directory: str | os.PathLike, scenes: list[str]) -> dict[str, Path]:
@@ -523,9 +606,13 @@ def write_report(result: StudyResult, directory: str | os.PathLike) -> dict[str,
     files = report_files(directory, [s.name for s in result.config.scenes])
     write_results_csv(result, files["csv"])
     write_results_json(result, files["json"])
-    for axis, key in (("spp", "error_vs_spp"), ("seconds", "error_vs_time")):
-        save_figure(error_figure(result, axis), files[key], dpi=110)
-    save_figure(summary_figure(result), files["summary"], dpi=100)
+    if result.scenes:
+        for axis, key in (("spp", "error_vs_spp"), ("seconds", "error_vs_time")):
+            save_figure(error_figure(result, axis), files[key], dpi=110)
+        save_figure(summary_figure(result), files["summary"], dpi=100)
+    else:  # interrupted before the first reference: nothing to plot
+        for key in ("error_vs_spp", "error_vs_time", "summary"):
+            files.pop(key)
     for scene in result.config.scenes:
         if any(s == scene.name for s, _ in result.images):
             save_figure(images_figure(result, scene.name), files[f"images_{scene.name}"],

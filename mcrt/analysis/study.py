@@ -44,15 +44,27 @@ metrics. Cells whose MSE is below :data:`RESOLVED_FACTOR` x the reference's
 noise floor are flagged and left out of fits. Per (scene, sampler) it fits the
 log-log slope of the excess MSE against spp and against seconds, and computes
 the efficiency ``1 / (excess MSE x seconds)`` of every cell.
+
+Interruption and resume: with a :class:`StudyState` (``mcrt compare`` keeps one
+in ``<report dir>/.mcrt-resume/``) every finished cell is saved atomically as
+soon as it is done, keyed by :func:`study_key` (the configuration's content,
+the scenes' content and the software versions). A Ctrl-C raises
+:class:`StudyInterrupted`, a ``KeyboardInterrupt`` carrying the partial
+:class:`StudyResult` of the finished cells; the next run with the same key
+takes the saved cells instead of rendering them again (cells, not seeds, are
+the unit of resume: the seeds of an interrupted cell are rendered again).
 """
 
 from __future__ import annotations
 
 import datetime
+import hashlib
+import json
 import logging
 import math
 import os
 import platform
+import shutil
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -97,10 +109,20 @@ _TOP_KEYS = {"name", "description", "spp", "seeds", "image_spp", "aliasing_draws
 _REFERENCE_KEYS = {"spp", "sampler", "seed", "spp_per_pass"}
 _SCENE_KEYS = {"path", "name", "params"}
 _SAMPLER_KEYS = {"name", "label", "params"}
+#: Longest scene name (UTF-8 bytes): images_<name>.png must fit a 255-byte file name.
+MAX_NAME_BYTES = 200
+#: Characters refused in scene names and sampler labels (they name files and CSV cells).
+_BAD_NAME_CHARS = ",/\\\n\r\t\0\"<>&:*?|"
 
 
 class ConfigError(McrtError):
-    """A study configuration is malformed or names something that does not exist."""
+    """A study configuration is malformed or names something that does not exist.
+
+    The message is kept on one line even when it quotes a value with line breaks.
+    """
+
+    def __init__(self, message: str):
+        super().__init__(" ".join(str(message).splitlines()))
 
 
 @dataclass(frozen=True)
@@ -264,8 +286,12 @@ def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
         except SamplerError as error:
             raise ConfigError(f"{where}: {error}") from None
         params = _params(item.get("params"), f"{where}.params", as_str=False)
+        reserved = sorted(set(params) & {"type", "sample_count", "seed"})
+        if reserved:
+            raise ConfigError(f"{where}.params.{reserved[0]}: set by the study (spp and seeds "
+                              f"are the study's own keys), not a sampler parameter")
         label = _str(item.get("label", sampler), f"{where}.label")
-        if any(c in label for c in ",/\\\n\"<>&"):
+        if any(c in label for c in _BAD_NAME_CHARS):
             raise ConfigError(f"{where}.label {label!r}: use letters, digits, '.', '-', '_'")
         samplers.append(SamplerSpec(sampler, label, params))
     labels = [s.label for s in samplers]
@@ -305,12 +331,24 @@ def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
         _check_keys(item, _SCENE_KEYS, where)
         if "path" not in item:
             raise ConfigError(f"{where}: missing 'path'")
-        scene_path = Path(_str(item["path"], f"{where}.path")).expanduser()
-        if not scene_path.is_absolute():
-            scene_path = (base_dir / scene_path).resolve()
-        if not scene_path.is_file():
+        raw_path = _str(item["path"], f"{where}.path")
+        try:
+            scene_path = Path(raw_path).expanduser()  # "~nobody/x": RuntimeError
+            if not scene_path.is_absolute():
+                scene_path = (base_dir / scene_path).resolve()  # a NUL: ValueError
+            found = scene_path.is_file()  # a name too long: OSError
+        except (RuntimeError, ValueError, OSError) as error:
+            reason = error.strerror if isinstance(error, OSError) else error
+            raise ConfigError(f"{where}.path {raw_path!r}: {reason}") from None
+        if not found:
             raise ConfigError(f"{where}: scene file not found: {scene_path}")
         scene_name = _str(item.get("name", scene_path.stem), f"{where}.name")
+        if any(c in scene_name for c in _BAD_NAME_CHARS) or scene_name in (".", ".."):
+            raise ConfigError(f"{where}.name {scene_name!r} names report files: use letters, "
+                              f"digits, '.', '-', '_'")
+        if len(scene_name.encode()) > MAX_NAME_BYTES:
+            raise ConfigError(f"{where}.name is {len(scene_name.encode())} bytes long; it names "
+                              f"report files (images_<name>.png): at most {MAX_NAME_BYTES}")
         scenes.append(SceneSpec(scene_name, scene_path,
                                 _params(item.get("params"), f"{where}.params", as_str=True)))
     names = [s.name for s in scenes]
@@ -318,11 +356,25 @@ def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
     if duplicate:
         raise ConfigError(f"scene name {duplicate!r} appears twice; give each a distinct 'name'")
 
+    study_name = _str(data.get("name", name), "name")
+    if any(c in study_name for c in "/\\\0\n") or study_name in (".", ".."):
+        raise ConfigError(f"name {study_name!r} names the default report directory: use "
+                          f"letters, digits, '.', '-', '_'")
     return StudyConfig(
-        name=_str(data.get("name", name), "name"),
-        description=str(data.get("description", "")).strip(),
+        name=study_name,
+        description=_description(data.get("description", "")),
         scenes=tuple(scenes), samplers=tuple(samplers), spp=spp, seeds=seeds,
         reference=reference, image_spp=image_spp, aliasing_draws=draws, path=path)
+
+
+def _one_line(error: BaseException) -> str:
+    return " ".join(str(error).split())
+
+
+def _description(value: Any) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(f"description must be a string, got {value!r}")
+    return value.strip()
 
 
 def load_config(path: str | Path, check_scenes: bool = True) -> StudyConfig:
@@ -333,13 +385,17 @@ def load_config(path: str | Path, check_scenes: bool = True) -> StudyConfig:
     so a study that starts will not fail on its input.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"study config not found: {path}")
     try:
+        if path.is_dir():
+            raise ConfigError(f"study config {path} is a directory, not a TOML file")
+        if not path.is_file():
+            raise ConfigError(f"study config not found: {path}")
         with open(path, "rb") as f:
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"{path}: invalid TOML: {error}") from None
+        raise ConfigError(f"{path}: invalid TOML: {_one_line(error)}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: invalid TOML: not UTF-8 text") from None
     except OSError as error:
         raise ConfigError(f"cannot read {path}: {error.strerror}") from None
     config = parse_config(data, base_dir=path.resolve().parent, name=path.stem, path=path)
@@ -422,6 +478,8 @@ class CellImages:
 
 @dataclass
 class StudyResult:
+    """What a study measured; ``partial`` when it was interrupted (see ``progress``)."""
+
     config: StudyConfig
     references: dict[str, ReferenceInfo]
     cells: list[dict]
@@ -430,6 +488,36 @@ class StudyResult:
     images: dict[tuple[str, str], CellImages]
     environment: dict
     seconds: float
+    #: the cell being rendered when the study was interrupted, with its seeds done
+    #: (``{"scene", "sampler", "spp", "seeds_done", "seeds_total"}``), else None
+    interrupted: dict | None = None
+    #: cells taken from an earlier run's saved state instead of being rendered
+    resumed_cells: int = 0
+    #: how to resume a partial study (set by the command line)
+    resume_command: str | None = None
+
+    @property
+    def partial(self) -> bool:
+        """True when some cells of the configuration were not measured."""
+        return len(self.cells) < self.config.cells
+
+    @property
+    def scenes(self) -> list[str]:
+        """Scenes with a reference (all of them unless the study was interrupted)."""
+        return [s.name for s in self.config.scenes if s.name in self.references]
+
+    def pending(self) -> list[tuple[str, str, int]]:
+        """(scene, sampler label, spp) of every cell not measured, in study order."""
+        done = {(c["scene"], c["sampler"], c["spp_requested"]) for c in self.cells}
+        return [key for key in cell_keys(self.config) if key not in done]
+
+    def progress(self) -> dict:
+        """Cells done / total, the interrupted cell, the pending cells (JSON-ready)."""
+        return {"partial": self.partial, "cells_done": len(self.cells),
+                "cells_total": self.config.cells, "cells_resumed": self.resumed_cells,
+                "seeds_per_cell": len(self.config.seeds), "interrupted": self.interrupted,
+                "pending": [{"scene": a, "sampler": b, "spp": c} for a, b, c in self.pending()],
+                "resume": self.resume_command if self.partial else None}
 
     def cell(self, scene: str, sampler: str, spp: int) -> dict:
         for c in self.cells:
@@ -442,6 +530,20 @@ class StudyResult:
             if (f["scene"], f["sampler"]) == (scene, sampler):
                 return f
         raise KeyError((scene, sampler))
+
+
+class StudyInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_study`; ``result`` holds the finished cells."""
+
+    def __init__(self, result: StudyResult):
+        super().__init__("study interrupted")
+        self.result = result
+
+
+def cell_keys(config: StudyConfig) -> list[tuple[str, str, int]]:
+    """(scene, sampler label, spp) of every cell, in the order a study runs them."""
+    return [(scene.name, sampler.label, spp) for scene in config.scenes
+            for sampler in config.samplers for spp in config.spp]
 
 
 def environment() -> dict:
@@ -491,8 +593,200 @@ class _Progress:
             self.bar.close()
 
 
-def run_study(config: StudyConfig, progress: bool = False) -> StudyResult:
-    """Run every cell of a validated study; see the module doc for what is measured."""
+# --------------------------------------------------------------------------- resume state
+
+#: Directory of the resume state inside a report directory.
+STATE_DIR = ".mcrt-resume"
+
+#: Version of the state's layout; a state of another format is ignored.
+STATE_FORMAT = 1
+
+
+def study_key(config: StudyConfig) -> str:
+    """SHA-256 (hex, 32 digits) of everything a study's numbers depend on.
+
+    The parsed configuration (not its bytes: comments, the study's name and
+    description do not change a measurement), the content of every scene file
+    (with the files it includes, :func:`~mcrt.analysis.reference.scene_digest`)
+    and the versions of mcrt, Mitsuba and Dr.Jit. A saved state with another
+    key belongs to another study and is never resumed.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from .. import __version__
+    from .reference import scene_digest
+
+    study = config.as_dict()
+    for key in ("name", "description", "config_path"):
+        study.pop(key, None)
+    payload = {"format": STATE_FORMAT, "study": study,
+               "scenes": [scene_digest(s.path, s.params) for s in config.scenes],
+               "versions": [__version__, mi.__version__, dr.__version__, mi.variant()]}
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready copy keeping NaN/Inf (Python's json writes and reads them back)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def reference_fingerprint(mean: np.ndarray, standard_error: np.ndarray) -> str:
+    """SHA-256 of a reference's float64 mean and standard error: the cells
+    measured against one reference are only resumed against the same bits."""
+    digest = hashlib.sha256()
+    for array in (mean, standard_error):
+        a = np.ascontiguousarray(array, dtype=np.float64)
+        digest.update(repr(a.shape).encode() + a.tobytes())
+    return digest.hexdigest()[:32]
+
+
+class StudyState:
+    """Finished cells of a study, saved after every cell so that a run can resume.
+
+    Lives in ``<report dir>/.mcrt-resume/``: ``state.json`` (the key, the
+    reference fingerprints and every finished cell with its per-seed values)
+    and one ``.npz`` per (scene, sampler) with the report's images. Every file
+    is written atomically and the images before the ``state.json`` that
+    refers to them, so a kill at any moment leaves a consistent state.
+    """
+
+    def __init__(self, directory: str | os.PathLike, key: str):
+        self.directory = Path(directory)
+        self.key = key
+        self.cells: dict[tuple[str, str, int], dict] = {}
+        self.references: dict[str, str] = {}
+        self.seconds = 0.0
+        self.runs = 0
+        self.writable = True
+
+    @property
+    def path(self) -> Path:
+        return self.directory / "state.json"
+
+    @classmethod
+    def open(cls, report_dir: str | os.PathLike, config: StudyConfig,
+             restart: bool = False) -> StudyState:
+        """The saved state of ``config`` in ``report_dir``, or an empty one.
+
+        A state that is unreadable, of another format or of another study
+        (another :func:`study_key`) is ignored with a note (and replaced by the
+        first cell this run saves); ``restart`` deletes any saved state. Nothing
+        is written here: the directory is created by the first :meth:`add`.
+        """
+        state = cls(Path(report_dir) / STATE_DIR, study_key(config))
+        if restart:
+            state.clear()
+        if not state.path.exists():
+            return state
+        try:
+            data = json.loads(state.path.read_text(encoding="utf-8"))
+            if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
+                raise ValueError("unknown format")
+            if data.get("key") != state.key:
+                log.info("%s belongs to another configuration (or other scene files or "
+                         "versions); starting afresh", state.path)
+                return state
+            keys = set(cell_keys(config))
+            for cell in data["cells"]:
+                key = (cell["scene"], cell["sampler"], int(cell["spp_requested"]))
+                if key in keys:
+                    state.cells[key] = cell
+            state.references = {str(k): str(v) for k, v in data["references"].items()}
+            state.seconds = float(data.get("seconds", 0.0))
+            state.runs = int(data.get("runs", 0))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
+            log.warning("ignoring unreadable resume state %s (%s)", state.path, error)
+            state.cells.clear()
+            state.references.clear()
+        return state
+
+    def _image_path(self, scene: str, label: str) -> Path:
+        name = hashlib.sha256(f"{scene}\0{label}".encode()).hexdigest()[:16]
+        return self.directory / f"images_{name}.npz"
+
+    def images(self, scene: str, label: str) -> CellImages | None:
+        """The saved images of (scene, sampler), or None if missing or unreadable."""
+        try:
+            with np.load(self._image_path(scene, label), allow_pickle=False) as data:
+                return CellImages(render=data["render"], error=data["error"], std=data["std"])
+        except (OSError, ValueError, KeyError):
+            return None
+
+    def check_reference(self, scene: str, fingerprint: str) -> None:
+        """Forget the cells of ``scene`` if its reference changed since they were measured."""
+        old = self.references.get(scene)
+        if old is not None and old != fingerprint:
+            stale = [key for key in self.cells if key[0] == scene]
+            if stale:
+                log.info("the reference of %s changed: %d saved cells are measured again",
+                         scene, len(stale))
+            for key in stale:
+                del self.cells[key]
+        self.references[scene] = fingerprint
+
+    def add(self, cell: dict, images: CellImages | None, seconds: float) -> None:
+        """Record a finished cell (and its images) and save; a write failure
+        (disk full, ...) is logged once and turns saving off, the study goes on."""
+        key = (cell["scene"], cell["sampler"], cell["spp_requested"])
+        self.cells[key] = _plain(cell)
+        if not self.writable:
+            return
+        from ..io.atomic import atomic_path
+
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            if images is not None:
+                with atomic_path(self._image_path(cell["scene"], cell["sampler"])) as tmp, \
+                        open(tmp, "wb") as f:
+                    np.savez(f, render=images.render, error=images.error, std=images.std)
+            self.save(seconds)
+        except (McrtError, OSError) as error:
+            log.warning("cannot save the resume state (%s); the study goes on, but an "
+                        "interruption will lose the cells not saved", error)
+            self.writable = False
+
+    def save(self, seconds: float) -> None:
+        """Write ``state.json`` atomically (``seconds``: study time so far, all runs)."""
+        from .. import __version__
+        from ..io.atomic import atomic_path
+
+        data = {"format": STATE_FORMAT, "key": self.key, "mcrt": __version__,
+                "runs": self.runs + 1, "seconds": seconds, "references": self.references,
+                "cells": list(self.cells.values())}
+        text = json.dumps(data, indent=0)  # NaN stays NaN: json reads it back
+        with atomic_path(self.path) as tmp, open(tmp, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
+
+    def clear(self) -> None:
+        """Delete the saved state (``--restart``)."""
+        shutil.rmtree(self.directory, ignore_errors=True)
+
+
+# --------------------------------------------------------------------------- running
+
+
+def run_study(config: StudyConfig, progress: bool = False,
+              state: StudyState | None = None) -> StudyResult:
+    """Run every cell of a validated study; see the module doc for what is measured.
+
+    With ``state``, cells saved there are taken instead of rendered and every
+    cell finished now is added to it. Ctrl-C raises :class:`StudyInterrupted`
+    with the result of the cells finished so far.
+    """
     from ..render.passes import render_film
     from ..render.plan import plan_scene
     from ..render.scene import make_sampler, quiet_sampler_warnings
@@ -501,13 +795,27 @@ def run_study(config: StudyConfig, progress: bool = False) -> StudyResult:
     if not config.effective_spp:
         check_config(config)
     start = time.perf_counter()
+    before = state.seconds if state is not None else 0.0
     env = environment()
+    if state is not None and state.cells:
+        env["resumed"] = True
     bar = _Progress(config.renders, progress)
     references: dict[str, ReferenceInfo] = {}
     reference_images: dict[str, np.ndarray] = {}
     cells: list[dict] = []
     images: dict[tuple[str, str], CellImages] = {}
     k = len(config.seeds)
+    current: dict | None = None
+    resumed = 0
+
+    def result(interrupted: dict | None = None) -> StudyResult:
+        fits = [_fit_sampler(config, scene, sampler.label, cells)
+                for scene in references for sampler in config.samplers]
+        return StudyResult(config=config, references=references, cells=cells, fits=fits,
+                           reference_images=reference_images, images=images, environment=env,
+                           seconds=before + time.perf_counter() - start,
+                           interrupted=interrupted, resumed_cells=resumed)
+
     try:
         for spec in config.scenes:
             bar.describe(f"{spec.name}: reference")
@@ -530,28 +838,43 @@ def run_study(config: StudyConfig, progress: bool = False) -> StudyResult:
                 seconds=float(ref.seconds), noise_floor=floor, rel_noise_floor=rel_floor,
                 width=int(width), height=int(height), cached=bool(getattr(ref, "cached", False)))
             reference_images[spec.name] = ref_mean
-            planned = plan_scene(spec.path, spec.params)  # as `mcrt render` renders it
-            scene = planned.scene
+            if state is not None:
+                state.check_reference(spec.name, reference_fingerprint(ref_mean, ref_se))
+            planned = None
 
             def render(sampler_obj, seed: int):
                 subframes, move = planned.schedule(sampler_obj, None, seed)
-                return render_film(scene, sampler_obj, seed=seed, passes=subframes,
+                return render_film(planned.scene, sampler_obj, seed=seed, passes=subframes,
                                    on_pass=move)
 
             for sampler in config.samplers:
                 for spp in config.spp:
+                    saved = state.cells.get((spec.name, sampler.label, spp)) if state else None
+                    saved_images = (state.images(spec.name, sampler.label)
+                                    if saved is not None and spp == config.image_spp else None)
+                    if saved is not None and (spp != config.image_spp or saved_images):
+                        cells.append(saved)
+                        if saved_images is not None:
+                            images[(spec.name, sampler.label)] = saved_images
+                        resumed += 1
+                        bar.update(k + 1)
+                        continue
+                    if planned is None:
+                        planned = plan_scene(spec.path, spec.params)  # as `mcrt render` does
                     bar.describe(f"{spec.name}: {sampler.label} {spp} spp")
+                    per_seed = []
+                    current = {"scene": spec.name, "sampler": sampler.label, "spp": spp,
+                               "seeds_done": 0, "seeds_total": k}
                     with quiet_sampler_warnings():
                         render(make_sampler(sampler.name, spp, **sampler.params),
                                WARMUP_SEED)  # untimed: compiles/caches kernels
                     bar.update()
-                    per_seed = []
                     renders = []
                     for seed in config.seeds:
                         with quiet_sampler_warnings():
                             obj = make_sampler(sampler.name, spp, **sampler.params)
-                        result = render(obj, seed)
-                        rgb = np.asarray(result.rgb, dtype=np.float64)
+                        result_ = render(obj, seed)
+                        rgb = np.asarray(result_.rgb, dtype=np.float64)
                         if rgb.shape != ref_mean.shape:
                             raise McrtError(f"scene {spec.name!r}: render shape {rgb.shape} "
                                             f"differs from the reference's {ref_mean.shape}")
@@ -565,29 +888,46 @@ def run_study(config: StudyConfig, progress: bool = False) -> StudyResult:
                         score = aliasing_score(error_map(clean, ref_mean),
                                                null_draws=config.aliasing_draws, seed=seed)
                         per_seed.append({
-                            "seed": seed, "spp": int(result.spp), "seconds": result.seconds,
+                            "seed": seed, "spp": int(result_.spp), "seconds": result_.seconds,
                             "mse": mse(clean, ref_mean), "rel_mse": rel_mse(clean, ref_mean),
                             "delta_e": delta_e_2000(clean, ref_mean),
                             "nonfinite": int(bad.sum()), "aliasing": score.as_dict()})
                         renders.append(rgb)
+                        current["seeds_done"] = len(per_seed)
                         bar.update()
                     stats = PixelStats.from_images(renders)
-                    cell = _summarise_cell(spec.name, sampler, spp, per_seed, stats, ref_mean,
-                                           ref_var, floor, k)
-                    cells.append(cell)
+                    cell = _plain(_summarise_cell(spec.name, sampler, spp, per_seed, stats,
+                                                  ref_mean, ref_var, floor, k))
+                    cell_images = None
                     if spp == config.image_spp:
                         first = np.where(np.isfinite(renders[0]), renders[0], ref_mean)
-                        images[(spec.name, sampler.label)] = CellImages(
+                        cell_images = CellImages(
                             render=renders[0].astype(np.float32),
                             error=error_map(first, ref_mean).astype(np.float32),
                             std=np.sqrt(variance_map(stats.variance)).astype(np.float32))
+                        images[(spec.name, sampler.label)] = cell_images
+                    cells.append(cell)
+                    current = None
+                    if state is not None:
+                        state.add(cell, cell_images, before + time.perf_counter() - start)
+    except _interrupts():
+        raise StudyInterrupted(result(current)) from None
     finally:
         bar.close()
-    fits = [_fit_sampler(config, scene.name, sampler.label, cells)
-            for scene in config.scenes for sampler in config.samplers]
-    return StudyResult(config=config, references=references, cells=cells, fits=fits,
-                       reference_images=reference_images, images=images, environment=env,
-                       seconds=time.perf_counter() - start)
+    return result()
+
+
+def _interrupts() -> tuple[type[BaseException], ...]:
+    """What a Ctrl-C raises out of a render: ``KeyboardInterrupt``, or the render
+    module's own ``RenderInterrupted`` (which carries the render's partial
+    passes, of no use to a study: a cell needs all of its seeds' full renders)."""
+    from ..render import passes
+
+    own = getattr(passes, "RenderInterrupted", None)
+    if isinstance(own, type) and issubclass(own, BaseException) \
+            and not issubclass(own, KeyboardInterrupt):
+        return (KeyboardInterrupt, own)
+    return (KeyboardInterrupt,)
 
 
 def _summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[dict],
@@ -630,7 +970,8 @@ def _summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[d
 
 def _fit_sampler(config: StudyConfig, scene: str, sampler: str, cells: list[dict]) -> dict:
     """Log-log slopes of the excess MSE vs spp and vs seconds over the resolved
-    cells' per-seed values."""
+    cells' per-seed values (NaN unless at least two sample counts are resolved:
+    the timing scatter of one cell's seeds is not a slope)."""
     mine = [c for c in cells if c["scene"] == scene and c["sampler"] == sampler]
     used = [c for c in mine if c["resolved"]]
     x_spp, x_sec, y = [], [], []
@@ -643,6 +984,8 @@ def _fit_sampler(config: StudyConfig, scene: str, sampler: str, cells: list[dict
                  "cells_used": len(used), "cells": len(mine)}
     for key, x in (("spp", x_spp), ("seconds", x_sec)):
         try:
+            if len({c["spp"] for c in used}) < 2:  # one cell's seed scatter is no slope
+                raise ValueError("fewer than two resolved sample counts")
             fit = fit_loglog(x, y)
         except ValueError:
             out.update({f"slope_{key}": float("nan"), f"slope_{key}_se": float("nan"),
@@ -655,6 +998,7 @@ def _fit_sampler(config: StudyConfig, scene: str, sampler: str, cells: list[dict
     return out
 
 
-__all__ = ["CellImages", "ConfigError", "ReferenceInfo", "ReferenceSpec", "SamplerSpec",
-           "SceneSpec", "StudyConfig", "StudyResult", "check_config", "load_config",
-           "parse_config", "run_study"]
+__all__ = ["STATE_DIR", "CellImages", "ConfigError", "ReferenceInfo", "ReferenceSpec",
+           "SamplerSpec", "SceneSpec", "StudyConfig", "StudyInterrupted", "StudyResult",
+           "StudyState", "cell_keys", "check_config", "load_config", "parse_config",
+           "reference_fingerprint", "run_study", "study_key"]

@@ -49,7 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.run(args) or 0)
     except McrtError as error:
-        print(f"mcrt: error: {error}", file=sys.stderr)
+        print(f"mcrt: error: {_one_line(error)}", file=sys.stderr)
+        return 2
+    except OSError as error:  # an I/O failure no check foresaw: still one line
+        where = f": {error.filename}" if error.filename else ""
+        print(f"mcrt: error: {error.strerror or error}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("mcrt: interrupted", file=sys.stderr)
@@ -57,6 +61,11 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. `mcrt ... | head`: the reader left, nothing to report
         _silence_stdout()
         return 141
+
+
+def _one_line(error: Exception) -> str:
+    """The message on one line (paths may contain newlines)."""
+    return " ".join(str(error).split("\n"))
 
 
 def _silence_stdout() -> None:

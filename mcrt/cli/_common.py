@@ -35,6 +35,9 @@ def non_negative_int(text: str) -> int:
 def output_stem(out: str | None, default: str) -> Path:
     """``-o OUT`` without a trailing image suffix (``OUT.exr`` and ``OUT.png`` get written)."""
     path = Path(out) if out else Path(default)
+    if path.name in ("", ".", ".."):  # "/", ".", "out/..": no file name to add .exr to
+        raise McrtError(f"-o {out}: names a directory; give an output path such as "
+                        f"{Path(out) / 'image'}")
     if path.suffix.lower() in (".exr", ".png"):
         path = path.with_suffix("")
     return path
@@ -44,6 +47,11 @@ def ensure_writable_dir(directory: Path) -> Path:
     """Create ``directory`` if needed and prove we can write there, before any work."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise McrtError(f"output directory {directory} is a file, not a directory") from None
+    except NotADirectoryError:
+        raise McrtError(f"cannot create output directory {directory}: a component of the path "
+                        f"is a file, not a directory") from None
     except OSError as error:
         raise McrtError(f"cannot create output directory {directory}: {error.strerror}") from None
     if not directory.is_dir():
@@ -60,5 +68,8 @@ def check_output_files(*paths: Path) -> None:
     """Fail early if an output path exists but cannot be replaced."""
     for path in paths:
         ensure_writable_dir(path.parent if str(path.parent) else Path("."))
-        if path.exists() and (path.is_dir() or not os.access(path, os.W_OK)):
-            raise McrtError(f"cannot overwrite {path}")
+        try:
+            if path.exists() and (path.is_dir() or not os.access(path, os.W_OK)):
+                raise McrtError(f"cannot overwrite {path}")
+        except OSError as error:  # e.g. a file name too long for the file system
+            raise McrtError(f"cannot write {path}: {error.strerror}") from None

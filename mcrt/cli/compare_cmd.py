@@ -1,14 +1,23 @@
-"""``mcrt compare``: run a study (scenes x samplers x spp x seeds) and write its report."""
+"""``mcrt compare``: run a study (scenes x samplers x spp x seeds) and write its report.
+
+Every finished cell is saved in ``DIR/.mcrt-resume/`` as it completes. Ctrl-C
+writes the report of the finished cells, marked partial, and exits with status
+130; running the same command again resumes: saved cells are not rendered
+again (see :class:`mcrt.analysis.study.StudyState`).
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
 import math
+import shlex
+import sys
 from pathlib import Path
 
 from ..analysis.report import report_files, write_report
-from ..analysis.study import load_config, run_study
+from ..analysis.study import STATE_DIR, StudyInterrupted, StudyState, load_config, run_study
+from ..errors import McrtError
 from ._common import check_output_files, ensure_writable_dir
 
 log = logging.getLogger("mcrt.compare")
@@ -21,13 +30,23 @@ def add_parser(commands) -> None:
                     "x seeds, see configs/quick.toml): time every render after a warm-up, "
                     "measure MSE, relMSE, variance, bias, CIEDE2000 and aliasing against a "
                     "high-spp reference, fit error-vs-spp and error-vs-time slopes, and write "
-                    "report.html, results.csv, results.json and PNG plots into DIR.")
+                    "report.html, results.csv, results.json and PNG plots into DIR. Finished "
+                    f"cells are saved in DIR/{STATE_DIR}: after Ctrl-C (which writes a partial "
+                    "report) the same command resumes where it stopped.")
     p.add_argument("config", metavar="CONFIG.toml", help="study configuration (TOML)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="report directory (default: out/compare/<study name>)")
     p.add_argument("--check", action="store_true",
                    help="only validate the configuration (load scenes, make samplers) and exit")
+    p.add_argument("--restart", action="store_true",
+                   help=f"ignore the cells saved in DIR/{STATE_DIR} and measure every cell again")
     p.set_defaults(run=run)
+
+
+def resume_command(args: argparse.Namespace, out: Path) -> str:
+    """The command line that resumes this study."""
+    quiet = ["-q"] if getattr(args, "quiet", False) else []
+    return shlex.join(["mcrt", *quiet, "compare", str(args.config), "-o", str(out)])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,7 +60,19 @@ def run(args: argparse.Namespace) -> int:
     ensure_writable_dir(out)
     check_output_files(*report_files(out, [s.name for s in config.scenes]).values())
 
-    result = run_study(config, progress=not args.quiet)
+    state = StudyState.open(out, config, restart=args.restart)
+    if state.cells:
+        log.info("resuming: %d of %d cells were measured by an earlier run (%s; --restart "
+                 "measures them again)", len(state.cells), config.cells, state.directory)
+    try:
+        result = run_study(config, progress=not args.quiet, state=state)
+    except StudyInterrupted as stop:
+        return _write_partial(stop.result, args, out)
+    except McrtError as error:
+        if state.cells and state.writable:
+            raise McrtError(f"{error} ({len(state.cells)} finished cells are saved in "
+                            f"{state.directory}; the same command resumes)") from None
+        raise
     files = write_report(result, out)
 
     for scene in config.scenes:
@@ -53,9 +84,30 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {sampler.label:14s} {_num(fit['slope_spp'], '+.2f'):>7s} "
                   f"{_num(fit['slope_seconds'], '+.2f'):>7s}  "
                   f"{_num(fit['efficiency_max'], '.3g'):>10s}")
-    print(f"study took {result.seconds:.1f} s; wrote {files['report']} "
+    resumed = (f" ({result.resumed_cells} of {config.cells} cells from the saved state)"
+               if result.resumed_cells else "")
+    print(f"study took {result.seconds:.1f} s{resumed}; wrote {files['report']} "
           f"(and results.csv, results.json, plots in {out})")
     return 0
+
+
+def _write_partial(result, args: argparse.Namespace, out: Path) -> int:
+    """Ctrl-C: the report of the finished cells, marked partial; exit status 130.
+
+    A second Ctrl-C while it is written leaves the previous files (atomic
+    writes) and the saved state intact; the command line then reports a plain
+    interruption.
+    """
+    command = resume_command(args, out)
+    result.resume_command = command
+    done, total = len(result.cells), result.config.cells
+    try:
+        write_report(result, out)
+        written = f"wrote a partial report ({done} of {total} cells) to {out}"
+    except McrtError as error:
+        written = f"could not write the partial report ({error})"
+    print(f"mcrt: interrupted: {written}; to resume, run: {command}", file=sys.stderr)
+    return 130
 
 
 def _num(value: float, spec: str) -> str:

@@ -10,6 +10,7 @@ from pathlib import Path
 from ..analysis.metrics import rel_mse
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
+from ..io.atomic import atomic_path
 from ..render.passes import render_film
 from ..render.plan import plan_scene
 from ..render.scene import check_sampler_name, make_sampler
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         sheet.append((f"reference ({reference.spp} spp)", reference.rgb))
         write_contact_sheet(out / f"{stem}_comparison.png", sheet, columns=3)
 
-    with open(out / "results.csv", "w", newline="") as f:
+    with atomic_path(out / "results.csv") as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)

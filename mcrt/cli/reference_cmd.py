@@ -14,11 +14,10 @@ from ..analysis.reference import (
     reference_layers,
     reference_metadata,
 )
-from ..errors import SceneError
 from ..io import write_exr
-from ..render.scene import check_sampler_name, parse_defines
+from ..render.scene import check_sampler_name, check_scene_file, parse_defines
 from ..samplers import ALL_SAMPLERS
-from ._common import check_output_files, non_negative_int, positive_int
+from ._common import check_output_files, non_negative_int, output_stem, positive_int
 
 
 def add_parser(commands) -> None:
@@ -49,10 +48,9 @@ def add_parser(commands) -> None:
 
 
 def _output_path(out: str | None, scene: str) -> Path:
-    if not out:
-        return Path(f"{Path(scene).stem}_reference.exr")
-    path = Path(out)
-    return path if path.suffix.lower() == ".exr" else path.with_name(path.name + ".exr")
+    """``-o OUT`` as an EXR path (the same rules as ``mcrt render``'s ``-o``)."""
+    stem = output_stem(out, f"{Path(scene).stem}_reference")
+    return stem.with_name(stem.name + ".exr")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
     # (get_reference loads the scene and plans the passes before its first pass).
     check_sampler_name(args.sampler)
     params = parse_defines(args.defines)
-    if not Path(args.scene).is_file():
-        raise SceneError(f"scene file not found: {args.scene}")
+    check_scene_file(args.scene)
     out = _output_path(args.output, args.scene)
     check_output_files(out)
 

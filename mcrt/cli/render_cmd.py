@@ -74,14 +74,16 @@ def run(args: argparse.Namespace) -> int:
     check_free_space(exr_path.parent, scene)
     metadata = {"mcrt_version": __version__, "scene": str(args.scene), "sampler": name,
                 "seed": args.seed, "defines": " ".join(f"{k}={v}" for k, v in params.items()),
-                "effects": ",".join(planned.plan.effects_on), "plan": planned.plan.to_json()}
+                "effects": ",".join(planned.plan.effects_on)}
     if adaptive_settings is not None:
+        metadata["plan"] = planned.plan.to_json()
         key = render_key(args.scene, params, overrides, name, 0, args.seed, None,
                          adaptive=asdict(adaptive_settings))
         return _run_adaptive(args, scene, sampler, name, adaptive_settings, metadata,
                              (exr_path, png_path, heat_path), key)
 
     passes, on_pass = planned.schedule(sampler, spp, args.seed)  # motion sub-frames
+    metadata["plan"] = planned.plan.to_json()  # with the sub-frame times just chosen
     if sampler.sample_count() != spp:
         log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,

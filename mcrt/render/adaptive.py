@@ -568,7 +568,7 @@ class AdaptiveCheckpoint:
                    seconds=float(scalars["seconds"]))
 
 
-class AdaptiveInterrupted(Exception):
+class AdaptiveInterrupted(KeyboardInterrupt):
     """Ctrl-C during :func:`render_adaptive`: the passes finished so far, developed
     (``partial``; None before the first pass ends) and a checkpoint to resume."""
 

@@ -124,8 +124,9 @@ def _seeded_lanes(film: mi.Film, sampler: mi.Sampler, seed: int, pixels: int, gr
 
 def sequential_block_sums(blocks: int, size: int,
                           contributions: Callable[[mi.UInt32], list[mi.Float]],
-                          outputs: int) -> list[mi.Float]:
-    """Per block of ``size`` consecutive lanes: the sums of ``contributions(lane)``.
+                          outputs: int) -> list[mi.Float64]:
+    """Per block of ``size`` consecutive lanes: the sums of ``contributions(lane)``
+    (in float64).
 
     One kernel over the ``blocks`` blocks; each loops over its lanes in order, so
     the float sums are the same whatever the thread count (unlike atomic
@@ -136,10 +137,12 @@ def sequential_block_sums(blocks: int, size: int,
     first = dr.arange(mi.UInt32, blocks) * size
 
     def body(k, *sums):
-        return (k + 1, *(total + value
+        return (k + 1, *(total + mi.Float64(value)
                          for total, value in zip(sums, contributions(first + k))))
 
-    state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float, blocks)] * outputs),
+    # float64 running sums: a float32 one drifts with the block size (a block of
+    # 2^18 copies of 0.3 sums to ~1e-5 relative off; 2^22 to ~1e-2).
+    state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float64, blocks)] * outputs),
                           lambda k, *sums: k < size, body)
     result = list(state[1:])
     dr.eval(result)
@@ -208,7 +211,7 @@ class FilmCheckpoint:
         return state if 0 < state.passes_done <= state.passes else None
 
 
-class RenderInterrupted(Exception):
+class RenderInterrupted(KeyboardInterrupt):
     """Ctrl-C during :func:`render_film`: the passes finished so far, developed
     (``partial``, its ``spp`` counts only those passes), and a checkpoint to resume."""
 
@@ -267,7 +270,9 @@ class _FilmSplatter:
         dr.eval(kept, bad)
         pass_bad = np.array(dr.block_sum(bad, self.group), dtype=np.int64)
         if self.box:  # the sample counts for its own pixel only, with weight 1
-            sums = [[dr.block_sum(v, self.group) for v in kept]]
+            # float64: Dr.Jit's float32 block_sum adds sequentially in chunks and
+            # drifts (2^14+ copies of 0.3 sum to 2e-5 relative off).
+            sums = [[dr.block_sum(mi.Float64(v), self.group) for v in kept]]
         else:
             sums = self._filtered_sums(pixel, position, kept)
         pass_accum = np.zeros_like(self.accum)

@@ -74,7 +74,7 @@ from .motion import (
     subframe_times,
     take_motion,
 )
-from .scene import mitsuba_message, quiet_sampler_warnings, sampler_name
+from .scene import check_scene_file, mitsuba_message, quiet_sampler_warnings, sampler_name
 
 #: Effect names in the order plans list them, with a one-line description.
 EFFECTS: dict[str, str] = {
@@ -349,11 +349,7 @@ def _rgb(props: mi.Properties, name: str) -> np.ndarray | None:
 
 
 def _parse(path: str | Path, params: dict[str, str] | None):
-    path = Path(path)
-    if not path.exists():
-        raise SceneError(f"scene file not found: {path}")
-    if not path.is_file():
-        raise SceneError(f"scene path is not a file: {path}")
+    path = check_scene_file(path)
     config = mi.parser.ParserConfig(mi.variant())
     try:
         state = mi.parser.parse_file(config, str(path), **(params or {}))
@@ -366,11 +362,20 @@ def _parse(path: str | Path, params: dict[str, str] | None):
 
 def _instantiate(config, state, path) -> mi.Scene:
     state = mi.parser.ParserState(state)  # transforms edit the state: keep ours
+    # Files a scene names (meshes, textures) are relative to its folder, as with
+    # mi.load_file; mi.parser.instantiate does not add that folder itself.
+    resolver = mi.file_resolver()
+    saved = [str(resolver[i]) for i in range(len(resolver))]
+    resolver.prepend(str(Path(path).resolve().parent))
     try:
         mi.parser.transform_all(config, state)
         scene = mi.parser.instantiate(config, state)
     except Exception as error:
         raise SceneError(f"cannot load scene {path}: {mitsuba_message(error)}") from None
+    finally:
+        resolver.clear()
+        for entry in saved:
+            resolver.append(entry)
     if not isinstance(scene, mi.Scene):
         raise SceneError(f"{path} does not describe a scene (its root is not <scene>)")
     if not scene.sensors():

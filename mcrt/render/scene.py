@@ -41,13 +41,23 @@ def parse_defines(items: list[str] | None) -> dict[str, str]:
     return params
 
 
+def check_scene_file(path: str | Path) -> Path:
+    """``path`` as a Path if it is an existing regular file, else a one-line
+    :class:`SceneError` (missing, a directory, a name too long, ...)."""
+    path = Path(path)
+    try:
+        if not path.exists():
+            raise SceneError(f"scene file not found: {path}")
+        if not path.is_file():
+            raise SceneError(f"scene path is not a file: {path}")
+    except OSError as error:  # e.g. ENAMETOOLONG, which exists() does not swallow
+        raise SceneError(f"cannot read scene {path}: {error.strerror}") from None
+    return path
+
+
 def load_scene(path: str | Path, params: dict[str, str] | None = None) -> mi.Scene:
     """Load a Mitsuba XML scene, substituting ``$key`` parameters from ``params``."""
-    path = Path(path)
-    if not path.exists():
-        raise SceneError(f"scene file not found: {path}")
-    if not path.is_file():
-        raise SceneError(f"scene path is not a file: {path}")
+    path = check_scene_file(path)
     try:
         scene = mi.load_file(str(path), **(params or {}))
     except Exception as error:  # Mitsuba reports parse/plugin errors as RuntimeError

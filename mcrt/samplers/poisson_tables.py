@@ -114,8 +114,6 @@ References
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import threading
 from pathlib import Path
 
@@ -563,23 +561,19 @@ def _read(path: Path, n: int) -> np.ndarray | None:
 
 
 def _write(path: Path, tables: np.ndarray) -> bool:
-    """Store ``tables`` atomically; False (and nothing left behind) on any error."""
-    tmp = None
+    """Store ``tables`` atomically; False (and nothing left behind) on any error.
+
+    Through :func:`mcrt.io.atomic.atomic_path`, whose temporary file is removed
+    on any exception, ``KeyboardInterrupt`` included.
+    """
+    from ..io.atomic import atomic_path
+
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}-", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.save(f, tables, allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
         return True
     except Exception:  # best effort: read-only or full disk, odd file systems, ...
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
         return False
 
 
