@@ -166,12 +166,14 @@ def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(c
                                                                                 spp):
     """The issue's demonstration. Measured (render seed 0, this reference):
     uniform_grid ratio 1.89 / 1.53 with z 25 / 11 and peak z 24 / 12 at 4 / 16
-    spp; jittered and Poisson-disk ratios 0.98-1.00, every |z| <= 1.0.
-    Margins: the verdict threshold z = 5 (see the aliasing module: false alarms
-    ~1e-6 for the ratio, ~1e-3 for the peak; 224 stochastic renders of the full
-    study never passed 3.9), which the uniform grid clears 2-5x over; for the
-    noisy samplers the ratio must also be within 0.1 of 1, 3-4 null sd here
-    (0.026-0.036)."""
+    spp. Margins: the verdict threshold z = 5 (see the aliasing module: false
+    alarms ~1e-6 for the ratio, ~1e-3 for the peak; 224 stochastic renders of
+    the full study never passed 3.9), which the uniform grid clears 2-5x over.
+    For the noisy samplers the ratio must also be within 0.2 of 1: measured
+    over render seeds 0-23 (jittered, Poisson-disk, independent at 4 and 16
+    spp) its spread is sd 0.013-0.040, range 0.893-1.067 (seed 0, the one
+    used here, gives jittered's minimum 0.893, z -3.6, at 16 spp), so 0.2 is 5
+    of the largest sd, while an aliased render is off by 0.5-0.9."""
     from mcrt.render.passes import render_film
     from mcrt.render.scene import make_sampler
 
@@ -186,6 +188,6 @@ def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(c
     for name in ("jittered", "poisson_disk"):
         s = scores[name]
         assert s.verdict == "noise", (name, s)
-        assert abs(s.ratio - 1.0) < 0.1 and abs(s.ratio_z) < Z_THRESHOLD, (name, s)
+        assert abs(s.ratio - 1.0) < 0.2 and abs(s.ratio_z) < Z_THRESHOLD, (name, s)
         assert s.peak_z < Z_THRESHOLD, (name, s)
         assert grid.ratio_z > s.ratio_z + 2 * Z_THRESHOLD

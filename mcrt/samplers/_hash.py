@@ -80,3 +80,39 @@ def hash_keys_int(*keys: int) -> int:
     for k in keys:
         h = mix32_int(h ^ ((k * GOLDEN_U32 + 0x7F4A7C15) & 0xFFFFFFFF))
     return h
+
+
+def permute(index: mi.UInt32, n: int, key: mi.UInt32, active: mi.Bool | bool = True) -> mi.UInt32:
+    """Element ``index`` of a pseudo-random permutation of ``[0, n)`` chosen by ``key``.
+
+    For a power of two ``n = 2^k`` this is mcrt's own keyed bijection on ``k``-bit
+    integers: rounds of "multiply by an odd number mod 2^k" (moves low bits up)
+    and "xor with itself shifted right" (moves high bits down), two of the
+    multipliers and three xor/add offsets taken from ``key``. Every step is a
+    bijection, so every ``key`` gives a permutation. It has no loop and half the
+    multiplies of Kensler's hashed permutation ("Correlated Multi-Jittered
+    Sampling", Pixar 2013; ``mi.permute_kensler``), which costs ~5% of a Cornell
+    box render when every draw of every dimension uses it, and it is closer to
+    uniformly random: over 2e5 keys, the chi-square per degree of freedom of the
+    pairs (perm(0), perm(1)) is 1.13 at n = 64 and 38 at n = 16 (Kensler's: 5.2
+    and 272; 1 is ideal), and of the relation between two dimensions'
+    permutations 1.0 and 2.4 (Kensler's 1.0 and 14); see
+    ``tests/test_samplers.py``.
+    Other ``n`` use ``mi.permute_kensler`` (it cycle-walks to stay below ``n``).
+    """
+    if n & (n - 1) or n == 1:
+        return mi.permute_kensler(index, n, key, active)
+    k = n.bit_length() - 1
+    w = n - 1
+    half, third = max(1, (k + 1) // 2), max(1, k // 3)
+    t = (index ^ key) & w
+    t = (t * ((key >> 16) | 1)) & w
+    t ^= t >> half
+    t ^= (key >> 8) & w
+    t = (t * 0x2C1B3C6D) & w
+    t ^= t >> half
+    t = (t * ((key >> 24) * 2 + 1)) & w
+    t ^= t >> half
+    t = (t * 0x297A2D39) & w
+    t ^= t >> third
+    return (t + (key >> 4)) & w

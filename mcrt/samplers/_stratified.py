@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from ._hash import hash_extend, mix32, unit_float
+from ._hash import GOLDEN_U32, hash_extend, mix32, permute, unit_float
 from ._strata import (
     GOLDEN_FRAC_U32,
     R2_X_U32,
@@ -34,9 +34,14 @@ def split_sample(sample: mi.UInt32, n: int) -> tuple[mi.UInt32, mi.UInt32]:
 
 
 def epoch_key(dim_key: mi.UInt32, epoch: mi.UInt32) -> mi.UInt32:
-    """Key of one epoch of one (seed, pixel, dimension): the hash chain extended
-    (keys are already well mixed, so each extension costs one mix)."""
-    return hash_extend(dim_key, epoch)
+    """Key of one epoch of one (seed, pixel, dimension).
+
+    ``dim_key`` is already a well-mixed hash, and every consumer of the epoch key
+    hashes it again (Kensler's permutation, ``hash_extend`` for jitter, table and
+    shift choices), so the epoch is folded in without a mix of its own: one
+    multiply and one xor instead of a full mix on every draw. Epoch 0 (every
+    sample of a single-pass render) keeps ``dim_key`` unchanged."""
+    return dim_key ^ (epoch * GOLDEN_U32)
 
 
 def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
@@ -44,7 +49,7 @@ def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
     """One point per stratum of ``n`` equal 1D strata per epoch."""
     epoch, rank = split_sample(sample, n)
     key = epoch_key(dim_key, epoch)
-    cell = mi.permute_kensler(rank, n, key, active)
+    cell = permute(rank, n, key, active)
     u = unit_float(hash_extend(key, rank))
     t = jittered_offset(u, jitter, epoch_offset(epoch, GOLDEN_FRAC_U32))
     return place_in_stratum(cell, n, t)
@@ -56,7 +61,7 @@ def stratified_2d(dim_key: mi.UInt32, sample: mi.UInt32, k: int, jitter: float,
     n = k * k
     epoch, rank = split_sample(sample, n)
     key = epoch_key(dim_key, epoch)
-    cell = mi.permute_kensler(rank, n, key, active)
+    cell = permute(rank, n, key, active)
     row, col = split_sample(cell, k)
     h = hash_extend(key, rank)
     tx = jittered_offset(unit_float(h), jitter, epoch_offset(epoch, R2_X_U32))

@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..errors import SamplerError
-from ._hash import hash_extend, mix32, unit_float
+from ._hash import hash_extend, mix32, permute
 from ._stratified import epoch_key, split_sample, stratified_1d
 from .base import McrtSampler
 from .poisson_tables import MAX_POINTS, load_tables
@@ -30,6 +30,7 @@ def _device_tables(n: int) -> tuple[mi.Float, mi.Float, int]:
 
 #: Largest float32 below 1.
 ONE_MINUS_EPSILON = float.fromhex("0x1.fffffep-1")
+INV_2_16 = 1.0 / (1 << 16)
 
 
 def _wrap(v: mi.Float) -> mi.Float:
@@ -96,7 +97,7 @@ class PoissonDiskSampler(McrtSampler):
         table_x, table_y, n_tables = _device_tables(n)
         epoch, rank = split_sample(sample, n)
         set_key = epoch_key(key, epoch)
-        index = mi.permute_kensler(rank, n, set_key, active)
+        index = permute(rank, n, set_key, active)
         h = hash_extend(set_key, 0x9D15C)
         table = (h & 0xFFFF) % n_tables
         point = table * n + index
@@ -106,7 +107,7 @@ class PoissonDiskSampler(McrtSampler):
         x, y = dr.select((symmetry & 1) != 0, y, x), dr.select((symmetry & 1) != 0, x, y)
         x = dr.select((symmetry & 2) != 0, 1.0 - x, x)
         y = dr.select((symmetry & 4) != 0, 1.0 - y, y)
-        shift = mix32(h)
-        x = _wrap(x + unit_float(shift))
-        y = _wrap(y + unit_float(mix32(shift)))
+        shift = mix32(h)  # 16 bits per axis: a toroidal shift on a 2^-16 grid
+        x = _wrap(x + mi.Float(shift >> 16) * INV_2_16)
+        y = _wrap(y + mi.Float(shift & 0xFFFF) * INV_2_16)
         return mi.Point2f(x, y)
