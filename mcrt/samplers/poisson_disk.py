@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..errors import SamplerError
-from ._hash import hash_extend, mix32, permute
+from ._hash import hash_extend, permute
 from ._stratified import epoch_key, split_sample, stratified_1d
 from .base import McrtSampler
 from .poisson_tables import MAX_POINTS, load_tables
@@ -98,16 +98,17 @@ class PoissonDiskSampler(McrtSampler):
         epoch, rank = split_sample(sample, n)
         set_key = epoch_key(key, epoch)
         index = permute(rank, n, set_key, active)
-        h = hash_extend(set_key, 0x9D15C)
-        table = (h & 0xFFFF) % n_tables
+        # The set key is a well-mixed hash already: its bits pick the table and
+        # the symmetry directly; one more mix gives the shift.
+        table = ((set_key >> 8) & 0xFFFF) % n_tables
         point = table * n + index
         x = dr.gather(mi.Float, table_x, point, active)
         y = dr.gather(mi.Float, table_y, point, active)
-        symmetry = h >> 29  # 3 bits: swap axes, mirror x, mirror y
+        symmetry = set_key >> 29  # 3 bits: swap axes, mirror x, mirror y
         x, y = dr.select((symmetry & 1) != 0, y, x), dr.select((symmetry & 1) != 0, x, y)
         x = dr.select((symmetry & 2) != 0, 1.0 - x, x)
         y = dr.select((symmetry & 4) != 0, 1.0 - y, y)
-        shift = mix32(h)  # 16 bits per axis: a toroidal shift on a 2^-16 grid
+        shift = hash_extend(set_key, 0x9D15C)  # 16 bits per axis: a shift on a 2^-16 grid
         x = _wrap(x + mi.Float(shift >> 16) * INV_2_16)
         y = _wrap(y + mi.Float(shift & 0xFFFF) * INV_2_16)
         return mi.Point2f(x, y)
