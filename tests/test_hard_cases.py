@@ -157,6 +157,19 @@ def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     return code, out, err
 
 
+def cli_render(tmp_path, capsys, monkeypatch, name: str, spp: int, params: dict):
+    """``mcrt -q render scenes/hard/NAME --sampler jittered`` into ``tmp_path``:
+    (stdout, EXR layers, EXR metadata); the command must succeed."""
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / Path(name).stem
+    defines = [arg for key, value in params.items() for arg in ("-D", f"{key}={value}")]
+    code, stdout, _ = run_cli(capsys, "-q", "render", str(HARD / name), "--sampler", "jittered",
+                              "--spp", str(spp), *defines, "-o", str(out))
+    assert code == 0
+    layers, meta = read_exr(out.with_suffix(".exr"))
+    return stdout, layers, meta
+
+
 def covered(scene: mi.Scene, hit) -> np.ndarray:
     """(H, W) bool: pixels whose four corners (inset by 1% of a pixel) all see a
     surface point ``p`` with ``hit(p)`` True (``p`` an (N, 3) array, NaN where
@@ -344,13 +357,8 @@ def test_dynamic_range_float32_exr_keeps_both_ends(tmp_path, capsys, monkeypatch
     bit and the float64 per-pixel means to 1e-6 relative, on the 1.3e4 facade
     and on the 1e-2 wall alike (a float16 film, Mitsuba's default, keeps 11
     bits: 2.4e-4 relative at best, and overflows above 65504)."""
-    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
-    out = tmp_path / "dr"
-    code, stdout, _ = run_cli(capsys, "-q", "render", str(HARD / "dynamic_range.xml"),
-                              "--sampler", "jittered", "--spp", "64", "-D", "width=48",
-                              "-D", "height=24", "-o", str(out))
-    assert code == 0
-    layers, meta = read_exr(out.with_suffix(".exr"))
+    _, layers, meta = cli_render(tmp_path, capsys, monkeypatch, "dynamic_range.xml", 64,
+                                 DR_PARAMS)
     rgb = layers["rgb"]
     assert rgb.dtype == np.float32 and rgb.shape == (24, 48, 3)
     assert meta["nonfinite_samples"] == 0 and "nonfinite" not in layers
@@ -497,19 +505,14 @@ def test_cli_reports_nonfinite_samples_in_summary_and_exr(tmp_path, capsys, monk
     samples and the pixels affected, and writes the same total to the EXR's
     ``nonfinite_samples`` attribute and the per-pixel counts as its
     ``nonfinite`` layer; the image itself is finite."""
-    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
-    out = tmp_path / "deg"
-    code, stdout, _ = run_cli(capsys, "-q", "render", str(HARD / "degenerate.xml"),
-                              "--sampler", "jittered", "--spp", "16", "-D", "width=32",
-                              "-D", "height=16", "-o", str(out))
-    assert code == 0
+    stdout, layers, meta = cli_render(tmp_path, capsys, monkeypatch, "degenerate.xml", 16,
+                                      DEG_PARAMS)
     film = render("degenerate.xml", "jittered", 16, seed=0, film=True, **DEG_PARAMS)
     count, pixels = film.nonfinite_samples, int((film.nonfinite > 0).sum())
     assert count > 0
     match = re.search(r"non-finite samples: (\d+) .*?(\d+) pixels", stdout)
     assert match, stdout
     assert (int(match.group(1)), int(match.group(2))) == (count, pixels)
-    layers, meta = read_exr(out.with_suffix(".exr"))
     assert int(meta["nonfinite_samples"]) == count
     np.testing.assert_array_equal(layers["nonfinite"], film.nonfinite.astype(np.float32))
     assert np.isfinite(layers["rgb"]).all()
