@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import atomic_path
+from ..io.atomic import atomic_path, ensure_writable_dir
 from .aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, Z_THRESHOLD
 from .metrics import REL_MSE_EPSILON
 from .plots import new_figure, save_figure
@@ -600,7 +600,6 @@ def report_files(directory: str | os.PathLike, scenes: list[str]) -> dict[str, P
 
 def write_report(result: StudyResult, directory: str | os.PathLike) -> dict[str, Path]:
     """Write every report file into ``directory`` (created if needed); returns them."""
-    from ..cli._common import ensure_writable_dir
 
     ensure_writable_dir(Path(directory))
     files = report_files(directory, [s.name for s in result.config.scenes])

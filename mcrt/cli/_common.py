@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 from pathlib import Path
 
 from ..errors import McrtError
+from ..io.atomic import ensure_writable_dir
 
 
 def positive_int(text: str) -> int:
@@ -41,27 +41,6 @@ def output_stem(out: str | None, default: str) -> Path:
     if path.suffix.lower() in (".exr", ".png"):
         path = path.with_suffix("")
     return path
-
-
-def ensure_writable_dir(directory: Path) -> Path:
-    """Create ``directory`` if needed and prove we can write there, before any work."""
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise McrtError(f"output directory {directory} is a file, not a directory") from None
-    except NotADirectoryError:
-        raise McrtError(f"cannot create output directory {directory}: a component of the path "
-                        f"is a file, not a directory") from None
-    except OSError as error:
-        raise McrtError(f"cannot create output directory {directory}: {error.strerror}") from None
-    if not directory.is_dir():
-        raise McrtError(f"output directory {directory} is not a directory")
-    try:
-        with tempfile.NamedTemporaryFile(dir=directory, prefix=".mcrt-write-test-"):
-            pass
-    except OSError as error:
-        raise McrtError(f"cannot write to output directory {directory}: {error.strerror}") from None
-    return directory
 
 
 def check_output_files(*paths: Path) -> None:

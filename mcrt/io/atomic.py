@@ -17,6 +17,7 @@ import contextlib
 import errno
 import os
 import secrets
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -163,3 +164,24 @@ def ensure_readable(path: str | os.PathLike) -> Path:
     except OSError as exc:
         raise read_error(path, exc) from None
     return p
+
+
+def ensure_writable_dir(directory: Path) -> Path:
+    """Create ``directory`` if needed and prove we can write there, before any work."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise McrtError(f"output directory {directory} is a file, not a directory") from None
+    except NotADirectoryError:
+        raise McrtError(f"cannot create output directory {directory}: a component of the path "
+                        f"is a file, not a directory") from None
+    except OSError as error:
+        raise McrtError(f"cannot create output directory {directory}: {error.strerror}") from None
+    if not directory.is_dir():
+        raise McrtError(f"output directory {directory} is not a directory")
+    try:
+        with tempfile.NamedTemporaryFile(dir=directory, prefix=".mcrt-write-test-"):
+            pass
+    except OSError as error:
+        raise McrtError(f"cannot write to output directory {directory}: {error.strerror}") from None
+    return directory
