@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 # Small matrix products in the analysis tests run 10-30x slower with OpenBLAS's
@@ -11,10 +12,62 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import mitsuba as mi  # noqa: E402
 import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
 
 import mcrt  # noqa: E402,F401  (activates the variant and registers the plugins)
+from mcrt.cli import main  # noqa: E402
 
 OUR_SAMPLERS = ("uniform_grid", "jittered", "poisson_disk")
+
+ROOT = Path(__file__).resolve().parents[1]
+CHECKERBOARD = ROOT / "scenes" / "checkerboard.xml"
+
+#: Property-based tests: the same examples on every run (derandomized, no database).
+FUZZ = settings(derandomize=True, database=None, deadline=None, print_blob=False,
+                suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                       HealthCheck.too_slow, HealthCheck.filter_too_much])
+
+#: A valid scene that renders in milliseconds ($spp, $jitter parameters).
+TINY_SCENE = """<scene version="3.0.0">
+    <default name="spp" value="4"/>
+    <default name="jitter" value="0.5"/>
+    <integrator type="direct"/>
+    <sensor type="perspective">
+        <float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <sampler type="jittered">
+            <integer name="sample_count" value="$spp"/>
+            <float name="jitter" value="$jitter"/>
+        </sampler>
+        <film type="hdrfilm">
+            <integer name="width" value="32"/><integer name="height" value="32"/>
+            <rfilter type="box"/>
+        </film>
+    </sensor>
+    <emitter type="constant"/>
+    <shape type="rectangle"><bsdf type="diffuse"/></shape>
+</scene>
+"""
+
+
+def study_toml(scene: str | Path, name: str | None = None,
+               params: str | None = "{ width = 64, height = 48 }") -> str:
+    """A small valid study: jittered and independent at 4 and 16 spp, 2 seeds,
+    a 64-spp reference, one scene (with ``params`` as its TOML table, if any)."""
+    return ("\n" + (f'name = "{name}"\n' if name else "")
+            + 'spp = [4, 16]\nseeds = 2\nsamplers = ["jittered", "independent"]\n'
+            + "[reference]\nspp = 64\n[[scenes]]\n" + f'path = "{scene}"\n'
+            + (f"params = {params}\n" if params else ""))
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    """``mcrt ARGV`` in-process: (exit code, stdout, stderr); argparse exits included."""
+    try:
+        code = main(list(argv))
+    except SystemExit as exit_:
+        code = exit_.code
+    out, err = capsys.readouterr()
+    return code, out, err
 
 
 @pytest.fixture(autouse=True)

@@ -8,10 +8,9 @@ jittered and Poisson-disk sampling leave noise.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import CHECKERBOARD
 
 from mcrt.analysis.aliasing import (
     MIN_SIZE,
@@ -23,8 +22,6 @@ from mcrt.analysis.aliasing import (
     white_noise_ratio_sd,
 )
 from mcrt.analysis.metrics import error_map
-
-CHECKERBOARD = Path(__file__).resolve().parents[1] / "scenes" / "checkerboard.xml"
 
 
 def _hann(n):

@@ -21,25 +21,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CHECKERBOARD, study_toml
 
 import mcrt.analysis.report as report
 import mcrt.analysis.study as study
 from mcrt.analysis.statistics import PixelStats
 from mcrt.errors import McrtError
 
-ROOT = Path(__file__).resolve().parents[1]
-CHECKERBOARD = ROOT / "scenes" / "checkerboard.xml"
-CONFIG = f"""
-name = "synthetic"
-spp = [4, 16]
-seeds = 2
-samplers = ["jittered", "independent"]
-[reference]
-spp = 64
-[[scenes]]
-path = "{CHECKERBOARD}"
-params = {{ width = 64, height = 48 }}
-"""
+CONFIG = study_toml(CHECKERBOARD, name="synthetic")
 
 
 def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResult:

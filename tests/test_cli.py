@@ -9,23 +9,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 import mcrt.cli.render_cmd as render_cmd
-from mcrt.cli import main
 from mcrt.io import read_exr
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 CORNELL = str(SCENES / "cornell_box.xml")
 SMALL = ["-D", "res=16"]
 
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    try:
-        code = main(list(argv))
-    except SystemExit as exit_:  # argparse errors
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.mark.parametrize("sampler", ["jittered", "poisson_disk", "uniform_grid", "independent",

@@ -9,25 +9,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CHECKERBOARD, ROOT, study_toml
 
 from mcrt.analysis.study import ConfigError, load_config
 from mcrt.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
 QUICK = ROOT / "configs" / "quick.toml"
 FULL = ROOT / "configs" / "full.toml"
-CHECKERBOARD = ROOT / "scenes" / "checkerboard.xml"
 
-GOOD = f"""
-spp = [4, 16]
-seeds = 2
-samplers = ["jittered", "independent"]
-[reference]
-spp = 64
-[[scenes]]
-path = "{CHECKERBOARD}"
-params = {{ width = 64, height = 48 }}
-"""
+GOOD = study_toml(CHECKERBOARD)
 
 
 def _config(tmp_path: Path, text: str) -> Path:

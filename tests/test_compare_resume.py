@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 import pytest
+from conftest import CHECKERBOARD, study_toml
 
 import mcrt.render.passes as passes
 from mcrt.analysis.study import (
@@ -27,20 +28,7 @@ from mcrt.cli import main
 from mcrt.errors import McrtError
 from mcrt.render.scene import sampler_name
 
-ROOT = Path(__file__).resolve().parents[1]
-CHECKERBOARD = ROOT / "scenes" / "checkerboard.xml"
-
-CONFIG = f"""
-name = "resume"
-spp = [4, 16]
-seeds = 2
-samplers = ["jittered", "independent"]
-[reference]
-spp = 64
-[[scenes]]
-path = "{CHECKERBOARD}"
-params = {{ width = 64, height = 48 }}
-"""
+CONFIG = study_toml(CHECKERBOARD, name="resume")
 
 #: Cell order of CONFIG (scene, sampler, spp): the order a study renders them.
 CELLS = [("checkerboard", "jittered", 4), ("checkerboard", "jittered", 16),

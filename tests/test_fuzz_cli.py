@@ -35,7 +35,8 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, example, given, settings
+from conftest import FUZZ, TINY_SCENE, study_toml
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import mcrt.cli
@@ -52,30 +53,7 @@ MODULES = ("mcrt.cli.render_cmd", "mcrt.cli.reference_cmd", "mcrt.cli.compare_cm
            "mcrt.analysis.integrate", "mcrt.render.adaptive", "mcrt.render.passes",
            "mcrt.samplers.points")
 
-FUZZ = settings(derandomize=True, database=None, deadline=None, print_blob=False,
-                suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                       HealthCheck.too_slow, HealthCheck.filter_too_much])
-
-TINY = """<scene version="3.0.0">
-    <default name="spp" value="4"/>
-    <default name="jitter" value="0.5"/>
-    <integrator type="direct"/>
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <sampler type="jittered">
-            <integer name="sample_count" value="$spp"/>
-            <float name="jitter" value="$jitter"/>
-        </sampler>
-        <film type="hdrfilm">
-            <integer name="width" value="32"/><integer name="height" value="32"/>
-            <rfilter type="box"/>
-        </film>
-    </sensor>
-    <emitter type="constant"/>
-    <shape type="rectangle"><bsdf type="diffuse"/></shape>
-</scene>
-"""
+TINY = TINY_SCENE
 
 #: Scene files (name in the work directory, validity). Built by the ``world`` fixture.
 SCENES = {
@@ -106,15 +84,7 @@ PREVIOUS = ["tiny_jittered.exr", "tiny_jittered.png", "tiny_reference.exr",
             "out/integrate/integrate_pi.csv", "out/integrate/integrate_pi.json",
             "out/demo/results.csv"]
 
-GOOD_STUDY = """
-spp = [4, 16]
-seeds = 2
-samplers = ["jittered", "independent"]
-[reference]
-spp = 64
-[[scenes]]
-path = "tiny.xml"
-"""
+GOOD_STUDY = study_toml("tiny.xml", params=None)
 
 
 class StubReached(Exception):

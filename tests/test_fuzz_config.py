@@ -27,7 +27,8 @@ import re
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, example, given, settings
+from conftest import FUZZ, TINY_SCENE
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from mcrt.analysis.study import WARMUP_SEED, ConfigError, parse_config
@@ -35,30 +36,7 @@ from mcrt.cli import main
 
 OK, BAD, ANY = "valid", "invalid", "either"
 
-FUZZ = settings(derandomize=True, database=None, deadline=None, print_blob=False,
-                suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                       HealthCheck.too_slow, HealthCheck.filter_too_much])
-
-TINY = """<scene version="3.0.0">
-    <default name="spp" value="4"/>
-    <default name="jitter" value="0.5"/>
-    <integrator type="direct"/>
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <sampler type="jittered">
-            <integer name="sample_count" value="$spp"/>
-            <float name="jitter" value="$jitter"/>
-        </sampler>
-        <film type="hdrfilm">
-            <integer name="width" value="32"/><integer name="height" value="32"/>
-            <rfilter type="box"/>
-        </film>
-    </sensor>
-    <emitter type="constant"/>
-    <shape type="rectangle"><bsdf type="diffuse"/></shape>
-</scene>
-"""
+TINY = TINY_SCENE
 
 GOOD = {"spp": [4, 16], "seeds": 2, "samplers": ["jittered", "independent"],
         "reference": {"spp": 64}, "scenes": [{"path": "tiny.xml"}]}

@@ -57,11 +57,11 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from mcrt.analysis.metrics import bias
 from mcrt.analysis.reference import get_reference
 from mcrt.analysis.statistics import PixelStats
-from mcrt.cli import main
 from mcrt.io import read_exr
 from mcrt.render.passes import render_film, render_stats
 from mcrt.render.plan import PlannedScene, plan_scene
@@ -150,11 +150,6 @@ def agreement_z(stats: PixelStats, ref: PixelStats, tile: tuple[int, int]) -> np
                     out[i, j, c] = math.inf
     return out
 
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def cli_render(tmp_path, capsys, monkeypatch, name: str, spp: int, params: dict):

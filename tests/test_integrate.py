@@ -7,21 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from conftest import run_cli
 from scipy import integrate as sci_integrate
 
 from mcrt.analysis import integrate as ib
-from mcrt.cli import main
 from mcrt.cli.integrate_cmd import sample_counts
-
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    try:
-        code = main(list(argv))
-    except SystemExit as exit_:
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
 
 # --------------------------------------------------------------------------- integrands
 

@@ -9,12 +9,11 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 import pytest
-from conftest import small_cornell
+from conftest import run_cli, small_cornell
 
 import mcrt.cli.reference_cmd as reference_cmd
 import mcrt.cli.render_cmd as render_cmd
 from mcrt.analysis.reference import ReferenceInterrupted, get_reference
-from mcrt.cli import main
 from mcrt.io import read_exr
 from mcrt.render.passes import RenderInterrupted, render_film
 from mcrt.render.scene import make_sampler
@@ -72,15 +71,10 @@ def test_interrupt_before_the_first_pass_keeps_nothing():
     assert stop.value.partial is None and stop.value.checkpoint.passes_done == 0
 
 
-def run_cli(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
-
-def with_interrupt(monkeypatch, k: int) -> list[int]:
-    """Make the CLI's render_film press Ctrl-C before pass k; returns the list of
-    passes traced (for checking what a resumed run renders)."""
+def with_interrupt(monkeypatch, k: int | None) -> list[int]:
+    """Make the CLI's render_film press Ctrl-C before pass k (never for None);
+    returns the list of passes traced (for checking what a resumed run renders)."""
     traced: list[int] = []
     real = render_cmd.render_film
 
@@ -98,18 +92,8 @@ def with_interrupt(monkeypatch, k: int) -> list[int]:
 
 
 def record_passes(monkeypatch) -> list[int]:
-    traced: list[int] = []
-    real = render_cmd.render_film
-
-    def patched(*args, on_pass=None, **kwargs):
-        def hook(index, count):
-            traced.append(index)
-            if on_pass is not None:
-                on_pass(index, count)
-        return real(*args, on_pass=hook, **kwargs)
-
-    monkeypatch.setattr(render_cmd, "render_film", patched)
-    return traced
+    """The passes the CLI's render_film traces, without interrupting."""
+    return with_interrupt(monkeypatch, None)
 
 
 @pytest.fixture

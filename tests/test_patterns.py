@@ -11,22 +11,12 @@ import math
 
 import numpy as np
 import pytest
+from conftest import run_cli
 from scipy.stats import qmc
 
 from mcrt.analysis import patterns as pt
-from mcrt.cli import main
 from mcrt.samplers.points import point_sets
 from mcrt.samplers.poisson_tables import RHO_GUARANTEE
-
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    try:
-        code = main(list(argv))
-    except SystemExit as exit_:
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
 
 # --------------------------------------------------------------------------- discrepancy
 

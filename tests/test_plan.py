@@ -10,8 +10,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
+from conftest import CHECKERBOARD, ROOT, run_cli
 
-from mcrt.cli import main
 from mcrt.errors import McrtError, SceneError
 from mcrt.io import read_exr
 from mcrt.render.motion import Motion, strobing_index, subframe_count, subframe_times
@@ -19,10 +19,8 @@ from mcrt.render.plan import EFFECTS, parse_effect_overrides, plan_scene
 from mcrt.render.trace import pixel_of_index, trace
 from mcrt.samplers import JitteredSampler
 
-ROOT = Path(__file__).resolve().parents[1]
 EFFECT_SCENES = ROOT / "scenes" / "effects"
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
-CHECKERBOARD = ROOT / "scenes" / "checkerboard.xml"
 
 
 # ----------------------------------------------------------------------------
@@ -325,14 +323,6 @@ def test_strobing_index():
 # ----------------------------------------------------------------------------
 # Command line
 # ----------------------------------------------------------------------------
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    try:
-        code = main(list(argv))
-    except SystemExit as exit_:
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
 
 def test_plan_command_prints_the_plan(capsys):
     code, out, _ = run_cli(capsys, "plan", str(EFFECT_SCENES / "combined.xml"), "--spp", "256")

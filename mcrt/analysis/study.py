@@ -215,6 +215,19 @@ def _str(value: Any, where: str) -> str:
     return value.strip()
 
 
+def _sampler_name(value: Any, where: str, label: str) -> str:
+    """A known sampler name (ours or Mitsuba's); ``label`` prefixes the error."""
+    from ..errors import SamplerError
+    from ..render.scene import check_sampler_name
+
+    name = _str(value, where)
+    try:
+        check_sampler_name(name)
+    except SamplerError as error:
+        raise ConfigError(f"{label}: {error}") from None
+    return name
+
+
 def _params(value: Any, where: str, as_str: bool) -> dict:
     if value is None:
         return {}
@@ -233,9 +246,6 @@ def _params(value: Any, where: str, as_str: bool) -> dict:
 def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
                  path: Path | None = None) -> StudyConfig:
     """Check the structure and numbers of a parsed TOML study (no scene loading)."""
-    from ..errors import SamplerError
-    from ..render.scene import check_sampler_name
-
     base_dir = base_dir or Path.cwd()
     _check_keys(data, _TOP_KEYS, "")
     for key in ("spp", "seeds", "samplers", "reference", "scenes"):
@@ -280,11 +290,7 @@ def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
         _check_keys(item, _SAMPLER_KEYS, where)
         if "name" not in item:
             raise ConfigError(f"{where}: missing 'name'")
-        sampler = _str(item["name"], f"{where}.name")
-        try:
-            check_sampler_name(sampler)
-        except SamplerError as error:
-            raise ConfigError(f"{where}: {error}") from None
+        sampler = _sampler_name(item["name"], f"{where}.name", where)
         params = _params(item.get("params"), f"{where}.params", as_str=False)
         reserved = sorted(set(params) & {"type", "sample_count", "seed"})
         if reserved:
@@ -308,14 +314,11 @@ def parse_config(data: dict, base_dir: Path | None = None, name: str = "study",
         raise ConfigError("reference: missing 'spp'")
     reference = ReferenceSpec(
         spp=_int(ref["spp"], "reference.spp", 1, 2**31),
-        sampler=_str(ref.get("sampler", "independent"), "reference.sampler"),
+        sampler=_sampler_name(ref.get("sampler", "independent"), "reference.sampler",
+                              "reference.sampler"),
         seed=_int(ref.get("seed", 0), "reference.seed", 0, 2**32),
         spp_per_pass=(None if ref.get("spp_per_pass") is None
                       else _int(ref["spp_per_pass"], "reference.spp_per_pass", 1, 2**20)))
-    try:
-        check_sampler_name(reference.sampler)
-    except SamplerError as error:
-        raise ConfigError(f"reference.sampler: {error}") from None
     if reference.spp < MIN_REFERENCE_FACTOR * max(spp):
         raise ConfigError(f"reference.spp ({reference.spp}) must be at least "
                           f"{MIN_REFERENCE_FACTOR} x the largest spp ({max(spp)})")
