@@ -25,7 +25,7 @@ from conftest import CHECKERBOARD, study_toml
 
 import mcrt.analysis.report as report
 import mcrt.analysis.study as study
-from mcrt.analysis.statistics import PixelStats
+from mcrt.core.stats import PixelStats
 from mcrt.errors import McrtError
 
 CONFIG = study_toml(CHECKERBOARD, name="synthetic")
@@ -270,7 +270,7 @@ def test_poisson_table_cache(tmp_path, monkeypatch):
 
 _KILLED_WRITER = r"""
 import sys, time
-from mcrt.io.atomic import atomic_path
+from mcrt.core.atomic import atomic_path
 with atomic_path(sys.argv[1]) as tmp, open(tmp, "w") as f:
     for i in range(100000):
         f.write("new line %d\n" % i)

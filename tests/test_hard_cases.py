@@ -61,7 +61,7 @@ from conftest import run_cli
 
 from mcrt.analysis.metrics import bias
 from mcrt.analysis.reference import get_reference
-from mcrt.analysis.statistics import PixelStats
+from mcrt.core.stats import PixelStats
 from mcrt.io import read_exr
 from mcrt.render.passes import render_film, render_stats
 from mcrt.render.plan import PlannedScene, plan_scene

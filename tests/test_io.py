@@ -189,7 +189,7 @@ def test_exr_failure_mid_write_keeps_previous_file(tmp_path, layers, monkeypatch
 
 
 def test_failure_at_rename_keeps_previous_file(tmp_path, monkeypatch):
-    import mcrt.io.atomic as atomic
+    import mcrt.core.atomic as atomic
 
     path = tmp_path / "image.png"
     write_png(path, np.full((4, 4, 3), 0.5))

@@ -25,7 +25,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mcrt.analysis.statistics import PixelStats, chan_merge
+from mcrt.core.stats import PixelStats, chan_merge
 from mcrt.render.passes import pass_moments
 
 REL = 1e-6

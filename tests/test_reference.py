@@ -27,7 +27,7 @@ from mcrt.analysis.reference import (
     save_state,
     scene_digest,
 )
-from mcrt.analysis.statistics import PixelStats
+from mcrt.core.stats import PixelStats
 from mcrt.cli import main
 from mcrt.errors import McrtError
 from mcrt.io import read_exr, write_exr

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import small_cornell
 
-from mcrt.analysis.statistics import PixelStats, chan_merge, welford_update
+from mcrt.core.stats import PixelStats, chan_merge, welford_update
 from mcrt.render.passes import render_film, render_stats
 from mcrt.render.scene import make_sampler
 

@@ -55,7 +55,7 @@ from scipy.stats import qmc
 
 from mcrt.analysis import patterns as pt
 from mcrt.analysis.integrate import DEFAULT_COUNTS, run_convergence
-from mcrt.analysis.statistics import PixelStats
+from mcrt.core.stats import PixelStats
 from mcrt.render.passes import render_stats
 from mcrt.render.scene import make_sampler
 from mcrt.samplers import ALL_SAMPLERS

@@ -17,7 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
-from ..io.atomic import atomic_path
+from ..core.atomic import atomic_path
 from .patterns import RadialSpectrum
 
 #: Display range of the power spectrum images (white noise = 1 is mid-grey).

@@ -3,7 +3,7 @@
 A reference is rendered in *passes*. Pass ``i`` is one :func:`render_stats` call
 with its own seed :func:`pass_seed` ``(seed, i)``, so passes are independent
 patterns; each pass's per-pixel moments ``(n, mean, M2)`` are Chan-merged in
-float64 into the running total (:mod:`mcrt.analysis.statistics`). Counts are
+float64 into the running total (:mod:`mcrt.core.stats`). Counts are
 int64 and the moments are merged pairwise, so the estimate, the per-sample
 variance and the standard error stay exact however many samples are taken
 (beyond 2^32 in total; Mitsuba alone renders at most 2^32 samples per call and
@@ -65,13 +65,13 @@ import numpy as np
 
 from ..cache import cache_dir
 from ..errors import McrtError, SamplerError
-from ..io.atomic import atomic_path
+from ..core.atomic import atomic_path
 from ..render.passes import deferred_interrupts, render_stats
 from ..render.plan import plan_scene
 from ..render.scene import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..render.trace import film_grid_size
 from ..samplers._hash import hash_keys_int
-from .statistics import PixelStats
+from ..core.stats import PixelStats
 
 log = logging.getLogger("mcrt.reference")
 

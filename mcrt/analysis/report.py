@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import atomic_path, ensure_writable_dir
+from ..core.atomic import atomic_path, ensure_writable_dir
 from .aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, Z_THRESHOLD
 from .metrics import REL_MSE_EPSILON
 from .plots import new_figure, save_figure

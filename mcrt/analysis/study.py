@@ -86,7 +86,7 @@ from .metrics import (
     rel_mse,
     variance_map,
 )
-from .statistics import PixelStats
+from ..core.stats import PixelStats
 
 log = logging.getLogger("mcrt.compare")
 
@@ -748,7 +748,7 @@ class StudyState:
         self.cells[key] = _plain(cell)
         if not self.writable:
             return
-        from ..io.atomic import atomic_path
+        from ..core.atomic import atomic_path
 
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
@@ -765,7 +765,7 @@ class StudyState:
     def save(self, seconds: float) -> None:
         """Write ``state.json`` atomically (``seconds``: study time so far, all runs)."""
         from .. import __version__
-        from ..io.atomic import atomic_path
+        from ..core.atomic import atomic_path
 
         data = {"format": STATE_FORMAT, "key": self.key, "mcrt": __version__,
                 "runs": self.runs + 1, "seconds": seconds, "references": self.references,

@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 from ..errors import McrtError
-from ..io.atomic import ensure_writable_dir
+from ..core.atomic import ensure_writable_dir
 
 
 def positive_int(text: str) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 from ..analysis.metrics import rel_mse
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
-from ..io.atomic import atomic_path
+from ..core.atomic import atomic_path
 from ..render.passes import render_film
 from ..render.plan import plan_scene
 from ..render.scene import check_sampler_name, make_sampler

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_convergence
 from ..errors import McrtError
-from ..io.atomic import atomic_path
+from ..core.atomic import atomic_path
 from ..render.scene import check_sampler_name
 from ._common import ensure_writable_dir, non_negative_int, positive_int
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..analysis import patterns
 from ..errors import McrtError
-from ..io.atomic import atomic_path
+from ..core.atomic import atomic_path
 from ..render.scene import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..samplers import ALL_SAMPLERS, BUILTIN_SAMPLERS
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets

@@ -6,7 +6,7 @@ unreadable paths as :class:`ImageIOError`, a :class:`~mcrt.errors.McrtError`.
 
 from __future__ import annotations
 
-from .atomic import ImageIOError, atomic_path
+from ..core.atomic import ImageIOError, atomic_path
 from .exr import MAIN_LAYER, read_exr, write_exr
 from .png import NONFINITE_COLOUR, contact_sheet, encode_srgb, write_contact_sheet, write_png
 

@@ -55,7 +55,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .atomic import ImageIOError, atomic_path, ensure_readable, read_error, write_error
+from ..core.atomic import ImageIOError, atomic_path, ensure_readable, read_error, write_error
 
 #: Layer whose channels are written without a prefix (``R G B [A]``).
 MAIN_LAYER = "rgb"

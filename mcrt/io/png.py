@@ -31,7 +31,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .atomic import atomic_path
+from ..core.atomic import atomic_path
 
 #: Colour of pixels with a NaN or infinite component.
 NONFINITE_COLOUR = (255, 0, 255)

@@ -69,7 +69,7 @@ The lecture's recipe, made precise:
    :func:`reconstruct_samples`).
 
 Per-pixel moments are float64 and merged across passes with Chan's formula
-(:func:`mcrt.analysis.statistics.chan_merge`), per pass from
+(:func:`mcrt.core.stats.chan_merge`), per pass from
 :func:`mcrt.render.passes.pass_moments`, so samples that are NaN or infinite are
 left out of the moments and sub-pixels, counted per pixel, and still count
 toward the pixel's budget (a pixel producing only NaN stops at ``max_spp``).
@@ -89,7 +89,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..analysis.metrics import LUMINANCE_WEIGHTS
-from ..analysis.statistics import PixelStats, chan_merge
+from ..core.stats import PixelStats, chan_merge
 from ..errors import McrtError
 from ..samplers._hash import hash_keys_int
 from ..samplers.base import is_mcrt_sampler
@@ -542,7 +542,7 @@ class AdaptiveCheckpoint:
         """Write atomically as ``.npz`` (``key`` identifies the render)."""
         import json
 
-        from ..io.atomic import atomic_path
+        from ..core.atomic import atomic_path
 
         scalars = json.dumps({"key": key, "leader": self.leader, "next_pass": self.next_pass,
                               "records": self.records, "seconds": self.seconds})

@@ -31,7 +31,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..analysis.statistics import PixelStats
+from ..core.stats import PixelStats
 from ..errors import McrtError
 from ..samplers._hash import hash_keys_int
 from ..samplers._stratified import split_sample
@@ -188,7 +188,7 @@ class FilmCheckpoint:
 
     def save(self, path: Path, key: str) -> None:
         """Write atomically as ``.npz`` (``key`` identifies the render)."""
-        from ..io.atomic import atomic_path
+        from ..core.atomic import atomic_path
 
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez(f, key=np.array(key), accum=self.accum, nonfinite=self.nonfinite,

@@ -566,7 +566,7 @@ def _write(path: Path, tables: np.ndarray) -> bool:
     Through :func:`mcrt.io.atomic.atomic_path`, whose temporary file is removed
     on any exception, ``KeyboardInterrupt`` included.
     """
-    from ..io.atomic import atomic_path
+    from ..core.atomic import atomic_path
 
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
