@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from mcrt.render import distribution
+import mcrt  # noqa: F401  (registers the distribution integrator)
+from mcrt.core.render import render_film, render_stats
+from mcrt.core.sampling import make_sampler
 from mcrt.render.motion import strobing_index
-from mcrt.render.passes import render_film, render_stats
 from mcrt.render.plan import plan_scene
-from mcrt.render.scene import load_scene, make_sampler
+from mcrt.render.scene import load_scene
 
 EFFECT_SCENES = Path(__file__).resolve().parents[1] / "scenes" / "effects"
 CORNELL = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
@@ -32,7 +33,7 @@ def render(path, params=None, overrides=None, spp=None, seed=0, sampler=None,
            subframes=None):
     """Render as ``mcrt render`` does (plan, sub-frames); returns (rgb, planned)."""
     planned = plan_scene(path, params, overrides)
-    sampler = make_sampler(sampler, spp or 16, seed) if sampler else \
+    sampler = make_sampler(sampler, spp or 16) if sampler else \
         planned.scene.sensors()[0].sampler()
     passes, on_pass = planned.schedule(sampler, spp, seed, subframes=subframes)
     result = render_film(planned.scene, sampler, spp=spp, seed=seed, passes=passes,
@@ -338,7 +339,6 @@ def test_distribution_integrator_limits(tmp_path, floor, ball, reference):
     independent renders differ by z ~ N(0, 1) if both are unbiased: the mean z
     over the ~220 lit pixels (channel R) must be within 4/sqrt(n) of 0 and the rms z below
     1.3 (a bias of a fraction of the noise in every pixel fails it)."""
-    distribution.register()
     ours = '<integrator type="distribution"><integer name="max_depth" value="3"/></integrator>'
     a = load_scene(glossy_test_scene(tmp_path, ours, floor, ball))
     b = load_scene(glossy_test_scene(tmp_path, reference, floor, ball))

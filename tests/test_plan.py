@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from conftest import CHECKERBOARD, ROOT, run_cli
 
+from mcrt.core.trace import pixel_of_index, trace
 from mcrt.errors import McrtError, SceneError
 from mcrt.io import read_exr
 from mcrt.render.motion import Motion, strobing_index, subframe_count, subframe_times
 from mcrt.render.plan import EFFECTS, parse_effect_overrides, plan_scene
-from mcrt.render.trace import pixel_of_index, trace
 from mcrt.samplers import JitteredSampler
 
 EFFECT_SCENES = ROOT / "scenes" / "effects"
@@ -190,6 +190,28 @@ def test_motion_off_is_one_subframe_at_the_shutter_open_pose():
     planned = plan_scene(EFFECT_SCENES / "motion.xml", overrides={"motion": False})
     assert planned.plan.subframes == 1 and planned.schedule() == (None, None)
     assert not planned.driver.moving
+
+
+def test_plan_reads_the_scene_once_and_registers_no_plugin(monkeypatch):
+    """One parse of the XML per plan (the analysis and the rendered scene are
+    both built from it), and no plugin registration as a side effect: that is
+    ``mcrt.register()``'s job."""
+    parses = []
+    parse_file = mi.parser.parse_file
+
+    def counting_parse(*args, **kwargs):
+        parses.append(args[1])
+        return parse_file(*args, **kwargs)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("plan_scene registered a plugin")
+
+    monkeypatch.setattr(mi.parser, "parse_file", counting_parse)
+    monkeypatch.setattr(mi, "register_integrator", refuse)
+    monkeypatch.setattr(mi, "register_sampler", refuse)
+    planned = plan_scene(EFFECT_SCENES / "glossy.xml", {"width": "16", "height": "12"})
+    assert planned.plan.integrator["type"] == "distribution"
+    assert parses == [str(EFFECT_SCENES / "glossy.xml")]
 
 
 @pytest.mark.parametrize("scene, effect, message", [

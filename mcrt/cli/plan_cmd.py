@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from ..core.sampling import check_sampler_name, make_sampler
 from ..render.plan import EFFECTS, parse_effect_overrides, plan_scene
-from ..render.scene import check_sampler_name, make_sampler, parse_defines
+from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS
 from ._common import non_negative_int, positive_int
 
@@ -19,7 +20,7 @@ def add_effect_argument(parser: argparse.ArgumentParser) -> None:
              f"--effect dof=off,motion=on; repeatable")
 
 
-def add_parser(commands) -> None:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = commands.add_parser(
         "plan", help="show which distribution effects a scene gets and how they are sampled",
         description="Analyse SCENE.xml (camera aperture, emitters, BSDF roughness, moving "
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     planned = plan_scene(args.scene, parse_defines(args.defines), overrides)
     scene_sampler = planned.scene.sensors()[0].sampler()
     spp = args.spp or scene_sampler.sample_count()
-    sampler = make_sampler(args.sampler, spp, args.seed) if args.sampler else scene_sampler
+    sampler = make_sampler(args.sampler, spp) if args.sampler else scene_sampler
     planned.schedule(sampler, spp, args.seed)
     if args.json:
         print(json.dumps(planned.plan.to_dict(), indent=2))

@@ -67,7 +67,10 @@ class DistributionIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.max_depth = int(props.get("max_depth", 3))
+        max_depth = props.get("max_depth", 3)
+        if not isinstance(max_depth, (int, float, str)):
+            raise SceneError("distribution: max_depth must be an integer")
+        self.max_depth = int(max_depth)
         if self.max_depth < 1:
             raise SceneError(f"distribution: max_depth must be >= 1, got {self.max_depth}")
         self.hide = bool(props.get("hide_emitters", False))
@@ -79,16 +82,16 @@ class DistributionIntegrator(mi.SamplingIntegrator):
         return f"DistributionIntegrator[max_depth={self.max_depth}]"
 
     def sample(self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
-               medium: mi.Medium = None, active: mi.Bool = True):
+               medium: mi.Medium | None = None, active: dr.auto.ad.Bool | bool = True):
         ctx = mi.BSDFContext()
         max_depth = self.max_depth
         hide = self.hide
 
-        ray = mi.Ray3f(ray)
+        path_ray = mi.Ray3f(ray)
         depth = mi.UInt32(0)
         L = mi.Spectrum(0.0)
         beta = mi.Spectrum(1.0)
-        active = mi.Bool(active)
+        alive = mi.Bool(active)
         valid = mi.Bool(False)
         prev_si = dr.zeros(mi.SurfaceInteraction3f)
         prev_pdf = mi.Float(1.0)
@@ -143,7 +146,7 @@ class DistributionIntegrator(mi.SamplingIntegrator):
                     last)
 
         state = dr.while_loop(
-            state=(sampler, ray, depth, L, beta, active, valid, prev_si, prev_pdf, prev_delta,
+            state=(sampler, path_ray, depth, L, beta, alive, valid, prev_si, prev_pdf, prev_delta,
                    last),
             cond=cond, body=body, labels=("sampler", "ray", "depth", "L", "beta", "active",
                                           "valid", "prev_si", "prev_pdf", "prev_delta", "last"),

@@ -60,8 +60,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.sampling import quiet_sampler_warnings
 from ..errors import SceneError
-from .scene import quiet_sampler_warnings
 
 VELOCITY = "mcrt_velocity"
 ANGULAR_VELOCITY = "mcrt_angular_velocity"
@@ -125,13 +125,14 @@ def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _vector3(props: mi.Properties, name: str, where: str) -> tuple[float, float, float]:
-    if props.type(name) != mi.Properties.Type.Vector:
+    value = props[name]
+    if props.type(name) != mi.Properties.Type.Vector or not isinstance(value, dr.scalar.Array3f64):
         raise SceneError(f"{where}: '{name}' must be a <vector> or <point> with three "
                          f"components, e.g. <vector name=\"{name}\" value=\"1, 0, 0\"/>")
-    value = tuple(float(c) for c in props[name])
-    if not all(math.isfinite(c) for c in value):
-        raise SceneError(f"{where}: '{name}' must be finite, got {value}")
-    return value  # type: ignore[return-value]
+    vector = (float(value[0]), float(value[1]), float(value[2]))
+    if not all(math.isfinite(c) for c in vector):
+        raise SceneError(f"{where}: '{name}' must be finite, got {vector}")
+    return vector
 
 
 def take_motion(props: mi.Properties, where: str) -> Motion | None:
@@ -228,13 +229,33 @@ def strobing_index(profile: np.ndarray, reference: np.ndarray, shift_px: float =
     return float(np.max(np.abs(profile - shifted)) / peak) if peak > 0 else 0.0
 
 
+@dataclass(frozen=True)
+class _RigidShape:
+    """A shape moved through its ``to_world`` parameter."""
+
+    motion: Motion
+    centre: np.ndarray           # default pivot: bounding-box centre at time 0
+    transform: type              # the parameter's transform class
+    to_world: np.ndarray         # 4x4 pose at time 0
+
+
+@dataclass(frozen=True)
+class _MeshShape:
+    """A mesh moved through its world-space vertex positions (and normals)."""
+
+    motion: Motion
+    centre: np.ndarray
+    positions: np.ndarray        # (n, 3) at time 0
+    normals: np.ndarray | None
+
+
 class MotionDriver:
     """Puts the moving shapes of an instantiated scene at any time of the shutter.
 
     Shapes with a ``to_world`` parameter (sphere, rectangle, disk, cylinder, ...)
     get ``to_world(t) = M(t) to_world(0)``; meshes get their world-space vertex
     positions (and normals) moved by ``M(t)``. :meth:`on_pass` is the
-    ``on_pass(index, count)`` hook of :func:`mcrt.render.passes.render_film`.
+    ``on_pass(index, count)`` hook of :func:`mcrt.core.render.render_film`.
     """
 
     def __init__(self, scene: mi.Scene, motions: Iterable[Motion],
@@ -243,28 +264,30 @@ class MotionDriver:
         self.times = None if times is None else np.asarray(times, dtype=np.float64)
         self.params = mi.traverse(scene)
         shapes = {s.id(): s for s in scene.shapes()}
-        self._initial: list[tuple[Motion, str, object, np.ndarray]] = []
+        self._initial: list[_RigidShape | _MeshShape] = []
         for motion in self.motions:
             if motion.shape not in shapes:
                 raise SceneError(f"moving shape '{motion.shape}' is not a shape of the scene")
-            bbox = shapes[motion.shape].bbox()
-            centre = 0.5 * (np.array(bbox.min, dtype=np.float64).ravel()
-                            + np.array(bbox.max, dtype=np.float64).ravel())
-            key = f"{motion.shape}.to_world"
-            if key in self.params:
-                value = self.params[key]
-                self._initial.append((motion, "to_world", (type(value), _matrix(value)), centre))
-                continue
-            key = f"{motion.shape}.vertex_positions"
-            if key not in self.params:
-                raise SceneError(f"shape '{motion.shape}' cannot move: it exposes neither "
-                                 f"to_world nor vertex_positions to mi.traverse")
-            positions = np.array(self.params[key], dtype=np.float64).reshape(-1, 3)
-            nkey = f"{motion.shape}.vertex_normals"
-            normals = (np.array(self.params[nkey], dtype=np.float64).reshape(-1, 3)
-                       if nkey in self.params and dr.width(self.params[nkey]) else None)
-            self._initial.append((motion, "mesh", (positions, normals), centre))
+            self._initial.append(self._initial_pose(motion, shapes[motion.shape]))
         self.time: float | None = None
+
+    def _initial_pose(self, motion: Motion, shape: mi.Shape) -> _RigidShape | _MeshShape:
+        bbox = shape.bbox()
+        centre = 0.5 * (np.array(bbox.min, dtype=np.float64).ravel()
+                        + np.array(bbox.max, dtype=np.float64).ravel())
+        key = f"{motion.shape}.to_world"
+        if key in self.params:
+            value = self.params[key]
+            return _RigidShape(motion, centre, type(value), _matrix(value))
+        key = f"{motion.shape}.vertex_positions"
+        if key not in self.params:
+            raise SceneError(f"shape '{motion.shape}' cannot move: it exposes neither "
+                             f"to_world nor vertex_positions to mi.traverse")
+        positions = np.array(self.params[key], dtype=np.float64).reshape(-1, 3)
+        nkey = f"{motion.shape}.vertex_normals"
+        normals = (np.array(self.params[nkey], dtype=np.float64).reshape(-1, 3)
+                   if nkey in self.params and dr.width(self.params[nkey]) else None)
+        return _MeshShape(motion, centre, positions, normals)
 
     @property
     def moving(self) -> bool:
@@ -274,19 +297,17 @@ class MotionDriver:
         """Move every moving shape to its pose at time ``t`` and update the scene."""
         if not self._initial:
             return
-        for motion, kind, data, centre in self._initial:
-            m = motion.matrix(t, centre)
-            if kind == "to_world":
-                cls, m0 = data
-                self.params[f"{motion.shape}.to_world"] = cls(mi.Matrix4f(m @ m0))
-            else:
-                positions, normals = data
-                moved = positions @ m[:3, :3].T + m[:3, 3]
-                self.params[f"{motion.shape}.vertex_positions"] = mi.Float(
-                    moved.astype(np.float32).ravel())
-                if normals is not None:
-                    self.params[f"{motion.shape}.vertex_normals"] = mi.Float(
-                        (normals @ m[:3, :3].T).astype(np.float32).ravel())
+        for shape in self._initial:
+            m = shape.motion.matrix(t, shape.centre)
+            name = shape.motion.shape
+            if isinstance(shape, _RigidShape):
+                self.params[f"{name}.to_world"] = shape.transform(mi.Matrix4f(m @ shape.to_world))
+                continue
+            moved = shape.positions @ m[:3, :3].T + m[:3, 3]
+            self.params[f"{name}.vertex_positions"] = mi.Float(moved.astype(np.float32).ravel())
+            if shape.normals is not None:
+                self.params[f"{name}.vertex_normals"] = mi.Float(
+                    (shape.normals @ m[:3, :3].T).astype(np.float32).ravel())
         self.params.update()
         self.time = t
 
@@ -302,7 +323,7 @@ class MotionDriver:
         return self.on_pass if self._initial else None
 
 
-def _matrix(transform) -> np.ndarray:
+def _matrix(transform: mi.ScalarTransform4f | mi.Transform4f) -> np.ndarray:
     """4x4 float64 matrix of a (width-1) Mitsuba transform."""
     m = np.array(transform.matrix, dtype=np.float64)
     return m.reshape(4, 4) if m.size == 16 else m[..., 0].reshape(4, 4)

@@ -1,33 +1,23 @@
-"""Loading scenes and samplers with errors a user can act on."""
+"""Loading scenes and samplers with errors a user can act on.
+
+Every scene mcrt renders is read by :func:`read_scene` (the XML parsed once,
+into a :class:`SceneDescription` that the render plan may edit) and built by
+:meth:`SceneDescription.instantiate`; :func:`load_scene` does both.
+"""
 
 from __future__ import annotations
 
-import logging
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import mitsuba as mi
 
-from ..errors import SamplerError, SceneError
-from ..samplers import ALL_SAMPLERS
-
-
-def mitsuba_message(error: BaseException) -> str:
-    """One line from a Mitsuba exception: no ``[file.cpp:123]`` prefix, and for
-    errors raised inside Python plugins, the final ``Type: message`` line."""
-    lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
-    if not lines:
-        return type(error).__name__
-    if len(lines) > 1 and "Traceback" in str(error):
-        line = lines[-1]
-    elif lines[0].endswith(":"):  # a heading followed by a list, e.g. unused parameters
-        line = lines[0] + " " + ", ".join(item.lstrip("- ") for item in lines[1:])
-    else:
-        line = lines[0]
-    line = re.sub(r"^\[[\w./-]+:\d+\]\s*", "", line)
-    return re.sub(r"^(?:\w+\.)*(?:SamplerError|SceneError|McrtError):\s*", "", line)
+from ..core.sampling import mitsuba_message
+from ..errors import SceneError
 
 
 def parse_defines(items: list[str] | None) -> dict[str, str]:
@@ -55,63 +45,75 @@ def check_scene_file(path: str | Path) -> Path:
     return path
 
 
-def load_scene(path: str | Path, params: dict[str, str] | None = None) -> mi.Scene:
-    """Load a Mitsuba XML scene, substituting ``$key`` parameters from ``params``."""
-    path = check_scene_file(path)
-    try:
-        scene = mi.load_file(str(path), **(params or {}))
-    except Exception as error:  # Mitsuba reports parse/plugin errors as RuntimeError
-        raise SceneError(f"cannot load scene {path}: {mitsuba_message(error)}") from None
-    if not isinstance(scene, mi.Scene):
-        raise SceneError(f"{path} does not describe a scene (its root is not <scene>)")
-    if not scene.sensors():
-        raise SceneError(f"{path} has no sensor to render from")
-    return scene
-
-
-def check_sampler_name(name: str) -> str:
-    """Return ``name`` if mcrt can render with that sampler, else raise."""
-    if name not in ALL_SAMPLERS:
-        raise SamplerError(f"unknown sampler {name!r}; choose one of: {', '.join(ALL_SAMPLERS)}")
-    return name
-
-
-def make_sampler(name: str, spp: int, seed: int = 0, **params) -> mi.Sampler:
-    """Instantiate sampler plugin ``name`` with ``spp`` samples per pixel."""
-    check_sampler_name(name)
-    try:
-        return mi.load_dict({"type": name, "sample_count": int(spp), "seed": int(seed), **params})
-    except Exception as error:
-        raise SamplerError(f"cannot create sampler {name!r}: {mitsuba_message(error)}") from None
-
-
-#: Mitsuba's C++ class names of the built-in samplers.
-_BUILTIN_CLASSES = {"IndependentSampler": "independent", "StratifiedSampler": "stratified",
-                    "MultijitterSampler": "multijitter", "OrthogonalSampler": "orthogonal",
-                    "LowDiscrepancySampler": "ldsampler"}
-
-
 @contextmanager
-def quiet_sampler_warnings() -> Iterator[None]:
-    """Silence the "rounding the sample count" warnings of Mitsuba's and mcrt's
-    samplers, for tools that create many samplers and report the effective
-    counts themselves."""
-    level = mi.log_level()
-    logger = logging.getLogger("mcrt.samplers")
-    old = logger.level
-    mi.set_log_level(mi.LogLevel.Error)
-    logger.setLevel(logging.ERROR)
+def _scene_folder_first(path: Path) -> Iterator[None]:
+    """Resolve the files a scene names (includes, meshes, textures) relative to
+    its folder first, as ``mi.load_file`` does; the resolver is restored after."""
+    # mi.file_resolver is missing from Mitsuba 3.9's stubs (they only have the
+    # deprecated mi.Thread.file_resolver), which makes it an untyped object.
+    resolver = cast(Callable[[], mi.FileResolver], mi.file_resolver)()
+    saved = [str(resolver[i]) for i in range(len(resolver))]
+    resolver.prepend(str(path.resolve().parent))
     try:
         yield
     finally:
-        mi.set_log_level(level)
-        logger.setLevel(old)
+        resolver.clear()
+        for entry in saved:
+            resolver.append(entry)
 
 
-def sampler_name(sampler: mi.Sampler) -> str:
-    """Plugin name of a sampler object (ours or Mitsuba's)."""
-    plugin = getattr(sampler, "plugin_name", "")
-    if plugin:
-        return plugin
-    cls = sampler.class_name()
-    return _BUILTIN_CLASSES.get(cls, cls)
+@dataclass
+class SceneDescription:
+    """A scene file read once: Mitsuba's parse state, which may be edited
+    (``nodes``) and instantiated any number of times."""
+
+    path: Path
+    config: mi.parser.ParserConfig
+    state: mi.parser.ParserState
+
+    @property
+    def nodes(self) -> mi.parser.SceneNodeList:
+        return self.state.nodes
+
+    def instantiate(self) -> mi.Scene:
+        """Build the scene the description says now (the description is kept:
+        Mitsuba's transforms edit a copy)."""
+        state = mi.parser.ParserState(self.state)
+        try:
+            with _scene_folder_first(self.path):
+                mi.parser.transform_all(self.config, state)
+                scene = mi.parser.instantiate(self.config, state)
+        except Exception as error:  # Mitsuba reports plugin errors as RuntimeError
+            raise SceneError(f"cannot load scene {self.path}: {mitsuba_message(error)}") from None
+        if not isinstance(scene, mi.Scene):
+            raise _not_a_scene(self.path)
+        if not scene.sensors():
+            raise SceneError(f"{self.path} has no sensor to render from")
+        return scene
+
+
+def _not_a_scene(path: Path) -> SceneError:
+    return SceneError(f"{path} does not describe a scene (its root is not <scene>)")
+
+
+def read_scene(path: str | Path, params: dict[str, str] | None = None) -> SceneDescription:
+    """Parse a Mitsuba XML scene, substituting ``$key`` parameters from ``params``."""
+    path = check_scene_file(path)
+    variant = mi.variant()
+    if variant is None:
+        raise SceneError("no Mitsuba variant is active (import mcrt to activate one)")
+    config = mi.parser.ParserConfig(variant)
+    try:
+        with _scene_folder_first(path):
+            state = mi.parser.parse_file(config, str(path), **(params or {}))
+    except Exception as error:  # Mitsuba reports parse errors as RuntimeError
+        raise SceneError(f"cannot load scene {path}: {mitsuba_message(error)}") from None
+    if state.nodes[0].type != mi.ObjectType.Scene:
+        raise _not_a_scene(path)
+    return SceneDescription(path, config, state)
+
+
+def load_scene(path: str | Path, params: dict[str, str] | None = None) -> mi.Scene:
+    """Load a Mitsuba XML scene, substituting ``$key`` parameters from ``params``
+    (what ``mi.load_file`` does, with one-line :class:`SceneError` messages)."""
+    return read_scene(path, params).instantiate()

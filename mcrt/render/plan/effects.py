@@ -1,0 +1,202 @@
+"""The per-effect decisions: does the scene have the effect, does it render, why.
+
+Each ``decide_*`` function looks at the scene as authored (:class:`SceneFacts`)
+and records one :class:`~.model.Effect` in :class:`Decisions`, honouring the
+user's overrides; see the table in :mod:`mcrt.render.plan`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mitsuba as mi
+
+from ...errors import McrtError
+from ..motion import NEGLIGIBLE_STREAK_PX, Motion
+from ..scene import SceneDescription
+from .camera import CameraModel, circle_of_confusion, first_value, streak_px
+from .model import Effect
+from .scan import AuthoredIntegrator, RoughBSDF, Scan, environment_emitters
+
+#: Depth of field is negligible when no visible depth blurs by this many pixels.
+DOF_NEGLIGIBLE_PX = 0.5
+#: A rough BSDF whose alpha is below this is rendered as its smooth counterpart.
+GLOSSY_MIN_ALPHA = 1e-3
+
+
+@dataclass
+class SceneFacts:
+    """The scene as authored: its description, scan and instantiated scene."""
+
+    desc: SceneDescription
+    scan: Scan
+    scene: mi.Scene
+    sensor: mi.Sensor
+    camera: CameraModel
+    scene_camera: str                   # the sensor's plugin
+    shutter: tuple[float, float]        # (open, close)
+
+    @classmethod
+    def of(cls, desc: SceneDescription, scan: Scan, scene: mi.Scene) -> SceneFacts:
+        sensor = scene.sensors()[0]
+        t_open = float(sensor.shutter_open())
+        t_close = t_open + float(sensor.shutter_open_time())
+        return cls(desc, scan, scene, sensor, CameraModel.of(sensor),
+                   desc.nodes[scan.sensor].props.plugin_name(), (t_open, t_close))
+
+    @property
+    def shutter_is_open(self) -> bool:
+        return self.shutter[1] > self.shutter[0]
+
+    def node_id(self, node: int) -> str:
+        return self.desc.nodes[node].props.id()
+
+
+@dataclass
+class Decisions:
+    """The effects decided so far, with what the later steps need of them."""
+
+    overrides: dict[str, bool]
+    effects: dict[str, Effect] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    to_smooth: list[RoughBSDF] = field(default_factory=list)  # rough BSDFs rendered smooth
+    coc_px: tuple[float, float] | None = None
+    motions: list[Motion] = field(default_factory=list)       # the shapes that move
+    streak_px: float = 0.0
+
+    def decide(self, name: str, present: bool, reason: str,
+               can_force: str | None = None) -> Effect:
+        """Record effect ``name``; ``can_force`` is why forcing it on fails
+        when it is absent (None: forcing on keeps it)."""
+        forced = self.overrides.get(name)
+        on = present if forced is None else forced
+        if forced and not present and can_force is not None:
+            raise McrtError(f"{name}=on: {can_force}")
+        self.effects[name] = Effect(name, present, on, reason, forced)
+        return self.effects[name]
+
+    def on(self, name: str) -> bool:
+        return self.effects[name].on
+
+
+def decide_effects(facts: SceneFacts, author: AuthoredIntegrator,
+                   overrides: dict[str, bool]) -> Decisions:
+    """Every effect, in the order plans list them."""
+    d = Decisions(overrides)
+    decide_aa(d)
+    decide_soft_shadows(d, facts)
+    decide_glossy(d, facts)
+    decide_dof(d, facts)
+    decide_motion(d, facts)
+    decide_indirect(d, facts, author)
+    return d
+
+
+def decide_aa(d: Decisions) -> None:
+    d.decide("aa", True, "film position sampled over the pixel area (film 2D)")
+
+
+def decide_soft_shadows(d: Decisions, facts: SceneFacts) -> None:
+    area = facts.scan.area_lights
+    names = ", ".join(facts.node_id(s) for s, _ in area)
+    lit = facts.scan.reflecting_shapes > 0
+    reason = (f"{len(area)} area emitter{'s' if len(area) != 1 else ''}"
+              + (f" ({names})" if names else "")
+              + ("" if lit or not area else " but nothing to light"))
+    d.decide("soft_shadows", bool(area) and lit, reason,
+             "the scene has no area emitter" if not area else "nothing in the scene to shadow")
+    env = environment_emitters(facts.scan)
+    if env:
+        d.notes.append(f"environment emitters ({', '.join(env)}) light with area too; "
+                       f"soft_shadows does not switch them")
+
+
+def _describe_rough(facts: SceneFacts, bsdf: RoughBSDF) -> str:
+    alpha = (f", alpha {bsdf.alpha:g}" if bsdf.alpha is not None and math.isfinite(bsdf.alpha)
+             else "")
+    return f"{facts.node_id(bsdf.node) or bsdf.plugin} ({bsdf.plugin}{alpha})"
+
+
+def decide_glossy(d: Decisions, facts: SceneFacts) -> None:
+    rough = facts.scan.rough
+    smooth = [b for b in rough if b.alpha is not None and b.alpha < GLOSSY_MIN_ALPHA]
+    glossy = any(b.alpha is None or b.alpha >= GLOSSY_MIN_ALPHA for b in rough)
+    desc = ", ".join(_describe_rough(facts, b) for b in rough)
+    if glossy:
+        reason = f"rough BSDFs: {desc}"
+    elif rough:
+        reason = f"roughness below {GLOSSY_MIN_ALPHA:g}: {desc}"
+    else:
+        reason = "no rough BSDF"
+    effect = d.decide("glossy", glossy, reason, None if rough else "the scene has no rough BSDF")
+    # Rough BSDFs rendered smooth: all when glossy is off, the negligibly rough
+    # ones unless glossy was forced on.
+    if not effect.on:
+        d.to_smooth = list(rough)
+    else:
+        d.to_smooth = [] if effect.forced else smooth
+
+
+def decide_dof(d: Decisions, facts: SceneFacts) -> None:
+    if facts.scene_camera != "thinlens":
+        d.decide("dof", False, f"pinhole camera ({facts.scene_camera})",
+                 "the camera is not a thinlens (give it aperture_radius and focus_distance)")
+        return
+    params = mi.traverse(facts.sensor)
+    radius = first_value(params, "aperture_radius")
+    focus = first_value(params, "focus_distance")
+    coc, depths = circle_of_confusion(facts.scene, facts.sensor, facts.camera, radius, focus)
+    reason = f"thin lens, aperture radius {radius:g}, focus distance {focus:g}"
+    if coc is not None:
+        reason += (f"; circle of confusion {coc[0]:.2f}..{coc[1]:.2f} px over the visible "
+                   f"depths {depths.min():.3g}..{depths.max():.3g}")
+    present = coc is None or coc[1] >= DOF_NEGLIGIBLE_PX
+    if not present:
+        reason += f" (below {DOF_NEGLIGIBLE_PX} px: negligible)"
+    d.coc_px = coc
+    d.decide("dof", present, reason)
+
+
+def decide_motion(d: Decisions, facts: SceneFacts) -> None:
+    motions = facts.scan.moving
+    t_open, t_close = facts.shutter
+    d.motions = motions
+    ids = ", ".join(m.shape for m in motions)
+    if not motions:
+        d.decide("motion", False, "no moving shape", "the scene has no moving shape")
+        return
+    if not facts.shutter_is_open:
+        d.decide("motion", False, f"moving shapes ({ids}) but the shutter is closed",
+                 "the sensor's shutter is closed (set shutter_open < shutter_close)")
+        return
+    d.streak_px = streak_px(facts.scene, facts.camera, motions, t_open, t_close)
+    reason = (f"{len(motions)} moving shape{'s' if len(motions) != 1 else ''} ({ids}); "
+              f"streak up to {d.streak_px:.1f} px over the shutter [{t_open:g}, {t_close:g}]")
+    present = d.streak_px >= NEGLIGIBLE_STREAK_PX
+    if not present:
+        reason += f" (below {NEGLIGIBLE_STREAK_PX} px: negligible)"
+    if facts.camera.kind == "unknown":
+        d.notes.append(f"cannot project motion through a '{facts.scene_camera}' camera: "
+                       f"one sub-frame per sample")
+    d.decide("motion", present, reason)
+
+
+def decide_indirect(d: Decisions, facts: SceneFacts, author: AuthoredIntegrator) -> None:
+    kind, depth, scan = author.kind, author.max_depth, facts.scan
+    if not author.replannable:
+        d.decide("indirect", False, f"the scene's own integrator '{kind}' decides")
+        if "indirect" in d.overrides:
+            raise McrtError(f"indirect: mcrt re-plans path and direct integrators only, "
+                            f"not '{kind}'")
+        return
+    interreflect = scan.reflecting_shapes >= 2 or scan.mesh_shapes > 0
+    if not author.deep:
+        reason = f"the scene's integrator is {kind}" + (
+            f" with max_depth {depth}" if kind == "path" else "")
+    elif not interreflect:
+        reason = "no surface can light another (fewer than two reflecting shapes)"
+    else:
+        reason = f"{scan.reflecting_shapes} reflecting shapes and a path integrator of " \
+                 f"max_depth {depth}"
+    d.decide("indirect", author.deep and interreflect, reason)

@@ -1,0 +1,81 @@
+"""The integrator a plan renders with (see the module docstring of
+:mod:`mcrt.render.plan`): the author's when mcrt cannot re-plan it, else
+``path`` for indirect light, ``distribution`` for reflections of other
+objects, ``direct`` for everything else."""
+
+from __future__ import annotations
+
+from .effects import Decisions, SceneFacts
+from .model import IntegratorSpec
+from .nodes import integer, scalar, scalars
+from .scan import AuthoredIntegrator, environment_emitters
+
+#: ``max_depth`` of ``path`` when indirect light is forced on in a scene whose
+#: own integrator sets none deeper than direct lighting.
+DEFAULT_INDIRECT_DEPTH = 8
+
+
+def choose_integrator(facts: SceneFacts, author: AuthoredIntegrator,
+                      d: Decisions) -> tuple[IntegratorSpec, str]:
+    """(integrator, why) for the decided effects."""
+    if not author.replannable:
+        return {"type": author.kind, **scalars(author.props)}, "kept as authored"
+    bounce = reflection_bounces(facts, d)
+    if d.on("indirect"):
+        spec, reason = _indirect(author)
+    elif bounce:
+        spec, reason = _distribution(facts, d, bounce)
+    else:
+        spec, reason = _direct(facts, author, d)
+    if "hide_emitters" in author.props:
+        spec["hide_emitters"] = bool(scalar(author.props, "hide_emitters"))
+    return spec, reason
+
+
+def reflection_bounces(facts: SceneFacts, d: Decisions) -> int:
+    """Bounces past direct light that glossy or specular surfaces need to show
+    other objects: 1, 2 with dielectrics (in and out), 0 without such surfaces."""
+    specular = bool(facts.scan.specular) or bool(d.to_smooth)
+    if not (d.on("glossy") or specular):
+        return 0
+    return 2 if facts.scan.dielectric else 1
+
+
+def _indirect(author: AuthoredIntegrator) -> tuple[IntegratorSpec, str]:
+    depth = author.max_depth if author.deep else DEFAULT_INDIRECT_DEPTH
+    spec: IntegratorSpec = {"type": "path", "max_depth": depth}
+    if author.kind == "path" and "rr_depth" in author.props:
+        spec["rr_depth"] = integer(author.props, "rr_depth")
+    return spec, "indirect light"
+
+
+def _distribution(facts: SceneFacts, d: Decisions, bounce: int) -> tuple[IntegratorSpec, str]:
+    what = "glossy" if d.on("glossy") else "specular"
+    reason = (f"{what} surfaces show other objects: {bounce} bounce"
+              f"{'s' if bounce > 1 else ''} past direct light"
+              + (" (dielectrics: in and out)" if facts.scan.dielectric else ""))
+    return {"type": "distribution", "max_depth": 2 + bounce}, reason
+
+
+def _direct(facts: SceneFacts, author: AuthoredIntegrator,
+            d: Decisions) -> tuple[IntegratorSpec, str]:
+    """Direct lighting: one emitter sample, and a BSDF sample only when MIS
+    needs one (emitters with area; glossy and specular surfaces never get
+    here: they need :func:`_distribution`)."""
+    extended = (d.on("soft_shadows") and bool(facts.scan.area_lights)) \
+        or bool(environment_emitters(facts.scan))
+    spec: IntegratorSpec = {"type": "direct", "emitter_samples": 1,
+                            "bsdf_samples": 1 if extended else 0}
+    reason = ("direct lighting is all the scene needs; BSDF sample for MIS with area emitters"
+              if extended else
+              "direct lighting is all the scene needs; delta lights only, so no BSDF sample")
+    if author.kind == "direct":
+        keys = ("emitter_samples", "bsdf_samples", "shading_samples")
+        explicit = {k: integer(author.props, k) for k in keys if k in author.props}
+        if "shading_samples" in explicit:
+            s = explicit.pop("shading_samples")
+            explicit = {"emitter_samples": s, "bsdf_samples": s}
+        if explicit:
+            spec.update(explicit)
+            reason = "direct lighting, sample counts as authored"
+    return spec, reason
