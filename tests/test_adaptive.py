@@ -3,18 +3,26 @@ reconstruction (the lecture's 80%-black pixel), the `adaptive` plugin and the CL
 
 from __future__ import annotations
 
+import argparse
+import math
+import re
+from dataclasses import MISSING, asdict, fields
 from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
+from conftest import TINY_SCENE
 
 from mcrt.analysis.metrics import rel_mse
-from mcrt.cli import main
+from mcrt.cli import _adaptive_args, main
+from mcrt.core.render import render_film, render_stats
+from mcrt.core.sampling import make_sampler
 from mcrt.errors import McrtError
 from mcrt.io import read_exr
 from mcrt.render.adaptive import (
+    PARAMETERS,
     AdaptiveSettings,
     budget_batches,
     dilate,
@@ -26,10 +34,10 @@ from mcrt.render.adaptive import (
     reconstruct_samples,
     render_adaptive,
 )
-from mcrt.render.passes import render_film, render_stats
-from mcrt.render.scene import load_scene, make_sampler
+from mcrt.render.scene import load_scene
 
-EDGES = Path(__file__).resolve().parents[1] / "scenes" / "edges.xml"
+ROOT = Path(__file__).resolve().parents[1]
+EDGES = ROOT / "scenes" / "edges.xml"
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -156,6 +164,158 @@ def test_invalid_settings_are_one_line_errors():
                 {"subpixels": 0}):
         with pytest.raises(McrtError, match="adaptive"):
             AdaptiveSettings(**bad).check()
+
+
+# -- the parameters: one declaration, everything else derived from it ------------------
+
+def _off_range(p) -> list:
+    """Values just outside the parameter's range, and of the wrong type."""
+    step = 1 if p.kind is int else 1e-9
+    bad = [True, "1", None]
+    if p.low is not None:
+        bad += [p.low if p.low_open else p.low - step]
+    if p.high is not None:
+        bad += [p.high if p.high_open else p.high + step]
+    if p.kind is int:
+        bad += [float(p.default)]
+    else:
+        bad += [math.nan, math.inf, -math.inf]
+    return bad
+
+
+def _in_range(p) -> list:
+    """Valid values: the default, the bounds if included, and one more."""
+    good = [p.default, p.default + 1 if p.kind is int else p.default * 1.01]
+    if p.low is not None and not p.low_open:
+        good.append(p.kind(p.low))
+    if p.high is not None and not p.high_open:
+        good.append(p.kind(p.high))
+    return good
+
+
+def test_settings_fields_are_the_declared_parameters():
+    assert [(f.name, f.type, f.default) for f in fields(AdaptiveSettings)] == \
+        [(p.name, p.kind.__name__, p.default) for p in PARAMETERS]
+    assert all(f.default is not MISSING for f in fields(AdaptiveSettings))
+    assert asdict(AdaptiveSettings()) == {p.name: p.default for p in PARAMETERS}
+    for p in PARAMETERS:
+        assert p.kind in (int, float) and type(p.default) is p.kind
+        assert p.help and p.help == p.help.strip() and not p.help.endswith(".")
+    AdaptiveSettings().check()
+
+
+@pytest.mark.parametrize("p", PARAMETERS, ids=lambda p: p.name)
+def test_check_follows_the_declared_range(p):
+    """Every value in the declared range passes, every value outside it (or of
+    the wrong type) is a one-line error that states the range."""
+    # Room for the one relation between parameters, max_spp >= min_spp (>= 2).
+    room = {"min_spp": {"max_spp": 1 << 20}, "max_spp": {"min_spp": 2}}.get(p.name, {})
+    for value in [v for v in _in_range(p) if p.name != "max_spp" or v >= 2]:
+        assert getattr(AdaptiveSettings(**{**room, p.name: value}).check(), p.name) == value
+    for value in _off_range(p):
+        with pytest.raises(McrtError) as error:
+            AdaptiveSettings(**{**room, p.name: value}).check()
+        assert str(error.value) == f"adaptive: '{p.name}' must be {p.rule()}, got {value!r}"
+
+
+def test_range_rules_read_as_before():
+    rules = {p.name: p.rule() for p in PARAMETERS}
+    assert rules["threshold"] == "a number >= 0"
+    assert rules["confidence"] == "a number in (0, 1)"
+    assert rules["growth"] == "a number > 1"
+    assert rules["min_spp"] == "an integer >= 2 (a variance needs two samples)"
+    assert rules["max_spp"] == "a positive integer"
+    assert rules["dilation"] == "an integer >= 0"
+    assert rules["subpixels"] == "an integer in [1, 64]"
+    with pytest.raises(McrtError, match=r"'max_spp' must be >= min_spp \(16\), got 8$"):
+        AdaptiveSettings(max_spp=8).check()
+
+
+def _cli_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser()
+    _adaptive_args.add_cli_arguments(parser)
+    return parser
+
+
+def test_cli_flags_follow_the_declaration():
+    actions = {a.option_strings[0]: a for a in _cli_parser()._actions if a.option_strings}
+    flags = [p.flag for p in PARAMETERS if p.cli]
+    assert set(actions) == {"-h", "--adaptive", *flags}
+    assert "--max-lanes" not in actions  # declared without a flag
+    for p in PARAMETERS:
+        if not p.cli:
+            continue
+        action = actions[p.flag]
+        assert action.dest == f"adaptive_{p.name}" and action.type is p.kind
+        assert action.default is None  # unset flags keep the scene's or declared default
+        assert action.help.startswith(p.help)
+        assert action.help.endswith(f"{p.default})")  # "(default X)", nothing hand-typed
+    assert actions["--max-spp"].help.endswith("(default: --spp if given, else 1024)")
+
+
+def test_cli_settings_take_every_flag_and_the_declared_defaults():
+    scene = mi.load_string(TINY_SCENE)
+    parser = _cli_parser()
+    parser.add_argument("--spp", type=int)
+    assert _adaptive_args.cli_settings(parser.parse_args(["--adaptive"]), scene) \
+        == AdaptiveSettings()
+    values = {p.name: _in_range(p)[1] for p in PARAMETERS if p.cli}
+    argv = ["--adaptive"] + [x for p in PARAMETERS if p.cli
+                             for x in (p.flag, str(values[p.name]))]
+    settings = _adaptive_args.cli_settings(parser.parse_args(argv), scene)
+    assert {k: getattr(settings, k) for k in values} == values
+    spp = _adaptive_args.cli_settings(parser.parse_args(["--adaptive", "--spp", "64"]), scene)
+    assert spp.max_spp == 64
+    with pytest.raises(McrtError, match="^--threshold, --dark-floor: only with --adaptive$"):
+        _adaptive_args.cli_settings(parser.parse_args(["--threshold", "0.1",
+                                                       "--dark-floor", "0.2"]), scene)
+
+
+@pytest.mark.parametrize("p", PARAMETERS, ids=lambda p: p.name)
+def test_plugin_properties_follow_the_declaration(p):
+    value = _in_range(p)[1]
+    integrator = mi.load_dict({"type": "adaptive", p.name: value})
+    assert getattr(integrator.settings, p.name) == value
+    assert type(getattr(integrator.settings, p.name)) is p.kind
+    if p.kind is float:  # an integer property of a float parameter is converted
+        whole = next((n for n in range(5) if p.valid(n)), None)
+        if whole is not None:
+            converted = mi.load_dict({"type": "adaptive", p.name: whole}).settings
+            assert type(getattr(converted, p.name)) is float
+    else:
+        with pytest.raises(Exception, match=f"'{p.name}' must be an integer"):
+            mi.load_dict({"type": "adaptive", p.name: float(value)})
+    bad = _off_range(p)[3]
+    with pytest.raises(Exception, match=f"'{p.name}' must be"):
+        mi.load_dict({"type": "adaptive", p.name: bad})
+
+
+def test_plugin_docstring_table_is_the_declaration():
+    """Rows of the ``pluginparameters`` table: name, type, text, default."""
+    from mcrt.render.adaptive_integrator import AdaptiveIntegrator
+
+    rows = re.findall(r"\* - (\S+)\n\s+- \|(\w+)\|\n\s+- (.*?)\(Default:\s+(.*?)\)\n",
+                      AdaptiveIntegrator.__doc__, flags=re.S)
+    assert [(name, kind, default) for name, kind, _, default in rows] == \
+        [(p.name, p.kind.__name__, str(p.default)) for p in PARAMETERS]
+    for (_, _, text, _), p in zip(rows, PARAMETERS):
+        assert " ".join(text.split()).lower().startswith(p.help.lower() + ".")
+
+
+def test_readme_table_and_flags_are_the_declaration():
+    readme = (ROOT / "README.md").read_text()
+    table = readme.split("| parameter | default | meaning |\n|---|---|---|\n", 1)[1]
+    rows = [line for line in table.split("\n\n", 1)[0].splitlines()]
+    assert rows == [f"| `{p.name}` | {p.default} | {p.help} |" for p in PARAMETERS]
+    sentence = readme.split("The command line takes them as ", 1)[1].split(".\n", 1)[0]
+    assert re.findall(r"`(--[a-z-]+)`", sentence) == [p.flag for p in PARAMETERS if p.cli]
+
+
+def test_render_layer_needs_no_argparse_or_matplotlib():
+    sources = (ROOT / "mcrt" / "render" / "adaptive").glob("*.py")
+    for path in [*sources, ROOT / "mcrt" / "render" / "adaptive_integrator.py"]:
+        text = path.read_text()
+        assert "argparse" not in text and "matplotlib" not in text, path
 
 
 # -- the render loop -----------------------------------------------------------------

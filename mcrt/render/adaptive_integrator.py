@@ -16,6 +16,7 @@ and ``mi.render(scene)`` renders adaptively. The engine is
 from __future__ import annotations
 
 import importlib
+import textwrap
 
 import drjit as dr
 import mitsuba as mi
@@ -23,27 +24,33 @@ import numpy as np
 
 from ..errors import McrtError
 from . import adaptive
-from .adaptive import AdaptiveSettings, render_adaptive
+from .adaptive import PARAMETERS, PARAMETERS_BY_NAME, AdaptiveSettings, Param, render_adaptive
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
 
-#: Plugin parameter name -> (settings field, type).
-PARAMETERS: dict[str, tuple[str, type]] = {
-    "threshold": ("threshold", float),
-    "confidence": ("confidence", float),
-    "dark_floor": ("dark_floor", float),
-    "min_spp": ("min_spp", int),
-    "max_spp": ("max_spp", int),
-    "growth": ("growth", float),
-    "dilation": ("dilation", int),
-    "subpixels": ("subpixels", int),
-    "max_lanes": ("max_lanes", int),
-}
+#: Properties that Mitsuba may pass to any sampling integrator (ignored).
+_IGNORED = ("samples_per_pass", "hide_emitters", "timeout")
+
+#: Indentation of the rows of the docstring's ``pluginparameters`` table.
+_ROW = "     "
+
+
+def parameter_row(p: Param) -> str:
+    """One row of the plugin's RST parameter table (name, type, text, default)."""
+    text = f"{p.help[:1].upper()}{p.help[1:]}. {p.details} (Default: {p.default})"
+    text = textwrap.fill(" ".join(text.split()), width=86 - len(_ROW),
+                         initial_indent=f"{_ROW}  - ", subsequent_indent=f"{_ROW}    ")
+    return f"{_ROW}* - {p.name}\n{_ROW}  - |{p.kind.__name__}|\n{text}"
+
+
+def _docstring(template: str) -> str:
+    """The class docstring: ``template`` with the parameter table filled in."""
+    return template.replace("{parameters}", "\n".join(parameter_row(p) for p in PARAMETERS))
 
 
 class AdaptiveIntegrator(mi.SamplingIntegrator):
-    r"""
+    __doc__ = _docstring(r"""
     .. _integrator-adaptive:
 
     Adaptive sampling (:monosp:`adaptive`)
@@ -55,44 +62,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
        - |integrator|
        - The sampling integrator that computes each sample (``path``,
          ``direct``, ...). (Default: ``path``)
-     * - threshold
-       - |float|
-       - Target relative standard error of a pixel's luminance: a pixel is done
-         when ``z * se_Y <= threshold * max(Y, dark_floor * Ybar)``.
-         (Default: 0.05)
-     * - confidence
-       - |float|
-       - Confidence of that bound; ``z`` is its two-sided normal quantile
-         (1.96 for 0.95). (Default: 0.95)
-     * - dark_floor
-       - |float|
-       - Pixels darker than ``dark_floor`` times the image's mean luminance
-         ``Ybar`` are judged against that level instead of their own, so black
-         pixels stop. (Default: 0.1)
-     * - min_spp
-       - |int|
-       - Samples of every pixel in the first pass (rounded up to a count the
-         sampler supports). (Default: 16)
-     * - max_spp
-       - |int|
-       - Per-pixel budget, NaN/Inf samples included; never exceeded. A nonzero
-         ``spp`` argument of ``mi.render`` overrides it. (Default: 1024)
-     * - growth
-       - |float|
-       - A pass multiplies an active pixel's sample count by about this factor
-         (batch sizes are rounded to counts the sampler supports). (Default: 1.5)
-     * - dilation
-       - |int|
-       - Pixels within this (Chebyshev) distance of a pixel that fails the test
-         are refined with it, at the same rate (against false negatives).
-         (Default: 1)
-     * - subpixels
-       - |int|
-       - ``s``: samples are first averaged in ``s x s`` uniform sub-pixels, which
-         are then filtered into the pixel with the film's filter. (Default: 4)
-     * - max_lanes
-       - |int|
-       - Largest wavefront traced at once. (Default: 4194304)
+{parameters}
 
     Pass 0 traces ``min_spp`` samples per pixel; each later pass traces new
     samples only for pixels that fail the error test (and their dilation
@@ -121,7 +91,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             'type': 'adaptive',
             'threshold': 0.05,
             'nested': {'type': 'path'}
-    """
+    """)
 
     #: Marker read by :func:`render_adaptive` to unwrap a scene's adaptive integrator.
     is_adaptive = True
@@ -134,11 +104,11 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             value = props[name]
             if isinstance(value, mi.Integrator):
                 nested.append(value)
-            elif name in PARAMETERS:
-                values[PARAMETERS[name][0]] = _typed(name, value)
-            elif name not in ("samples_per_pass", "hide_emitters", "timeout"):
+            elif name in PARAMETERS_BY_NAME:
+                values[name] = _typed(PARAMETERS_BY_NAME[name], value)
+            elif name not in _IGNORED:
                 raise McrtError(f"adaptive: unknown parameter {name!r}; expected one of "
-                                f"{', '.join(PARAMETERS)}")
+                                f"{', '.join(PARAMETERS_BY_NAME)}")
         if len(nested) > 1:
             raise McrtError("adaptive: expected one nested integrator, got "
                             f"{len(nested)}")
@@ -152,8 +122,9 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         self.settings = AdaptiveSettings(**values).check()
         self.last_result: adaptive.AdaptiveRender | None = None
 
-    def render(self, scene: mi.Scene, sensor: int | mi.Sensor = 0, seed: int = 0,
-               spp: int = 0, develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
+    def render(self, scene: mi.Scene, sensor: int | mi.Sensor = 0,  # type: ignore[override]
+               seed: int = 0, spp: int = 0, develop: bool = True,
+               evaluate: bool = True) -> mi.TensorXf:
         """Render adaptively; ``spp`` (if nonzero) overrides ``max_spp``."""
         sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
         settings = self.settings
@@ -169,7 +140,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             return mi.TensorXf()
         image = film.develop()
         dr.eval(image)
-        return image
+        return image  # type: ignore[return-value]
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """One sample of the nested integrator (adaptivity lives in :meth:`render`)."""
@@ -183,14 +154,15 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         return f"AdaptiveIntegrator[{params}, nested={self.nested}]"
 
 
-def _typed(name: str, value):
-    kind = PARAMETERS[name][1]
-    if kind is int:
+def _typed(p: Param, value):
+    """A property's value as the parameter's type (an int property of a float
+    parameter is converted; ranges are checked by :meth:`AdaptiveSettings.check`)."""
+    if p.kind is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise McrtError(f"adaptive: '{name}' must be an integer, got {value!r}")
+            raise McrtError(f"adaptive: '{p.name}' must be an integer, got {value!r}")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise McrtError(f"adaptive: '{name}' must be a number, got {value!r}")
+        raise McrtError(f"adaptive: '{p.name}' must be a number, got {value!r}")
     return float(value)
 
 
@@ -211,8 +183,9 @@ def _block(film: mi.Film, image: np.ndarray) -> mi.ImageBlock:
                         f"{channels}; use an rgb or rgba hdrfilm")
     h, w, _ = image.shape
     data = np.concatenate([image, np.ones((h, w, 1), np.float32)], axis=-1)
-    return mi.ImageBlock(mi.TensorXf(np.ascontiguousarray(data, dtype=np.float32)),
-                         film.crop_offset(), film.rfilter(), border=False, normalize=False)
+    tensor = mi.TensorXf(np.ascontiguousarray(data, dtype=np.float32))
+    return mi.ImageBlock(tensor, film.crop_offset(), film.rfilter(),  # type: ignore[call-overload]
+                         border=False, normalize=False)
 
 
 def register() -> None:
@@ -227,4 +200,4 @@ def register() -> None:
     mi.register_integrator("adaptive", lambda props, cls=module.AdaptiveIntegrator: cls(props))
 
 
-__all__ = ["AdaptiveIntegrator", "PARAMETERS", "register"]
+__all__ = ["AdaptiveIntegrator", "parameter_row", "register"]

@@ -1,0 +1,127 @@
+"""Multi-level reconstruction: samples binned into ``s x s`` uniform sub-pixels,
+each the mean of its samples, then filtered into pixels with the film's
+reconstruction filter evaluated at the sub-pixel centres (empty sub-pixels left
+out, the weights renormalised; see :mod:`mcrt.render.adaptive`)."""
+
+from __future__ import annotations
+
+import math
+
+import mitsuba as mi
+import numpy as np
+
+from ...errors import McrtError
+
+
+def subpixel_filter(rfilter: mi.ReconstructionFilter | None, s: int) -> tuple[int, np.ndarray]:
+    """1D weights of the reconstruction filter at sub-pixel centres.
+
+    Returns ``(t0, weights)``: tap ``i`` is the sub-pixel ``t0 + i`` counted from
+    the pixel's first sub-pixel (negative: the neighbour to the left/top). A
+    ``None`` filter is the box (the pixel's own ``s`` sub-pixels, weight 1).
+    """
+    if rfilter is None or rfilter.is_box_filter():
+        return 0, np.ones(s)
+    radius = float(rfilter.radius())
+    lo = math.floor(-(radius - 0.5) * s - 0.5)
+    hi = math.ceil((radius + 0.5) * s - 0.5)
+    taps = np.arange(lo, hi + 1)
+    offsets = (taps + 0.5) / s - 0.5
+    at = mi.Float(offsets.astype(np.float32))
+    weights = np.array(rfilter.eval(at), dtype=np.float64)  # type: ignore[arg-type]
+    weights[np.abs(offsets) >= radius] = 0.0
+    nonzero = np.flatnonzero(weights)
+    if nonzero.size == 0:
+        raise McrtError("adaptive: the reconstruction filter has no weight at sub-pixel "
+                        "centres; use more sub-pixels")
+    first, last = nonzero[0], nonzero[-1]
+    return int(taps[first]), weights[first:last + 1]
+
+
+def _filter_axis(a: np.ndarray, s: int, t0: int, w: np.ndarray, axis: int) -> np.ndarray:
+    """Filter ``s`` sub-pixels per pixel along ``axis`` into one value per pixel."""
+    n = a.shape[axis] // s
+    before = max(0, -t0)
+    after = max(0, t0 + len(w) - s)
+    pad = [(0, 0)] * a.ndim
+    pad[axis] = (before, after)
+    padded = np.pad(a, pad)
+    out = np.zeros(a.shape[:axis] + (n,) + a.shape[axis + 1:])
+    for i, weight in enumerate(w):
+        start = before + t0 + i
+        index = [slice(None)] * a.ndim
+        index[axis] = slice(start, start + n * s, s)
+        out += weight * padded[tuple(index)]
+    return out
+
+
+def reconstruct(sub_sum: np.ndarray, sub_count: np.ndarray,
+                taps: tuple[int, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Multi-level reconstruction from sub-pixel sums.
+
+    ``sub_sum`` (H, W, s, s, C) sums of sample values per sub-pixel (row ``sy``,
+    column ``sx``), ``sub_count`` (H, W, s, s) finite samples per sub-pixel;
+    ``taps`` from :func:`subpixel_filter` (default: box). Returns the (H, W, C)
+    image and the (H, W) total filter weight of non-empty sub-pixels (0: no
+    sample reached the pixel's filter support; such pixels are 0).
+    """
+    h, w, s, s2, c = sub_sum.shape
+    if s != s2 or sub_count.shape != (h, w, s, s):
+        raise ValueError("reconstruct(): expected sub_sum (H, W, s, s, C) and sub_count "
+                         "(H, W, s, s)")
+    t0, weights = taps if taps is not None else (0, np.ones(s))
+    # Level 1: uniform sub-pixels, each the mean of its own samples.
+    filled = (sub_count > 0).astype(np.float64)
+    mean = np.divide(sub_sum, sub_count[..., None], out=np.zeros(sub_sum.shape),
+                     where=sub_count[..., None] > 0)
+    if t0 == 0 and len(weights) == s and np.all(weights == weights[0]):
+        # Box filter: the mean of the pixel's own non-empty sub-pixels.
+        den = filled.sum(axis=(2, 3))
+        num = mean.sum(axis=(2, 3))  # empty sub-pixels hold 0
+        image = np.divide(num, den[..., None], out=np.zeros(num.shape),
+                          where=den[..., None] > 0)
+        return image, den * weights[0] ** 2
+    # Lay the sub-pixels out as an (H*s, W*s) image, then level 2: filter into pixels.
+    grid = mean.transpose(0, 2, 1, 3, 4).reshape(h * s, w * s, c)
+    mask = filled.transpose(0, 2, 1, 3).reshape(h * s, w * s)
+    num = _filter_axis(_filter_axis(grid * mask[..., None], s, t0, weights, 1),
+                       s, t0, weights, 0)
+    den = _filter_axis(_filter_axis(mask, s, t0, weights, 1), s, t0, weights, 0)
+    image = np.divide(num, den[..., None], out=np.zeros(num.shape),
+                      where=den[..., None] > 0)
+    return image, den
+
+
+def bin_samples(pixel: np.ndarray, position: np.ndarray, values: np.ndarray,
+                shape: tuple[int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bin samples into ``s x s`` sub-pixels: sums (H, W, s, s, C) and counts.
+
+    ``pixel`` (N, 2) integer (x, y), ``position`` (N, 2) continuous film
+    positions (inside the pixel), ``values`` (N, C). Non-finite samples are
+    left out.
+    """
+    pixel = np.asarray(pixel, dtype=np.int64)
+    position = np.asarray(position, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 1:
+        values = values[:, None]
+    h, w = shape
+    sub = np.clip(np.floor((position - pixel) * s), 0, s - 1).astype(np.int64)
+    keep = np.isfinite(values).all(axis=1)
+    key = (((pixel[:, 1] * w + pixel[:, 0]) * s + sub[:, 1]) * s + sub[:, 0])[keep]
+    size = h * w * s * s
+    counts = np.bincount(key, minlength=size).reshape(h, w, s, s)
+    sums = np.stack([np.bincount(key, weights=values[keep, i], minlength=size)
+                     for i in range(values.shape[1])], axis=-1).reshape(h, w, s, s, -1)
+    return sums, counts
+
+
+def reconstruct_samples(pixel: np.ndarray, position: np.ndarray, values: np.ndarray,
+                        shape: tuple[int, int], s: int = 4,
+                        rfilter: mi.ReconstructionFilter | None = None) -> np.ndarray:
+    """Multi-level reconstruction of arbitrary samples (see :func:`bin_samples`)."""
+    sums, counts = bin_samples(pixel, position, values, shape, s)
+    return reconstruct(sums, counts, subpixel_filter(rfilter, s))[0]
+
+
+__all__ = ["bin_samples", "reconstruct", "reconstruct_samples", "subpixel_filter"]

@@ -1,0 +1,117 @@
+"""What an adaptive render returns: its passes and the developed per-pixel arrays."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ...core.stats import PixelStats
+from .settings import AdaptiveSettings
+
+
+@dataclass
+class PassRecord:
+    """What one pass did."""
+
+    index: int
+    #: Pixels traced in this pass.
+    active_pixels: int
+    #: Samples traced in this pass (lanes).
+    samples: int
+    #: Distinct batch sizes (one compacted wavefront each, or more if chunked).
+    batch_sizes: tuple[int, ...]
+    #: Wall time of the pass: lanes, trace, moments, bookkeeping (synchronised).
+    seconds: float
+    #: Pixels whose error test passed after this pass (before dilation).
+    converged_pixels: int
+    #: NaN/Inf samples met in this pass.
+    nonfinite: int
+
+
+@dataclass
+class AdaptiveRender:
+    """Result of :func:`~mcrt.render.adaptive.render_adaptive`.
+
+    Per-pixel arrays cover the film's crop window (the sampled border, if any,
+    is cut off); ``stats`` are the box-binned sample moments (R, G, B) in
+    float64.
+    """
+
+    image: np.ndarray  # (H, W, C) float32, the film's channels (R, G, B[, A])
+    channels: list[str]
+    stats: PixelStats
+    #: Samples traced per pixel, NaN/Inf included, (H, W) int64.
+    spp: np.ndarray
+    passes: list[PassRecord]
+    seconds: float
+    settings: AdaptiveSettings
+    sampler: str
+    #: Batch sizes the sampler was used with (the ladder).
+    batch_ladder: tuple[int, ...]
+    #: The error test's bound on the standard error of each pixel's luminance
+    #: (:func:`~mcrt.render.adaptive.luminance_error`), (H, W).
+    luminance_stderr: np.ndarray
+    #: Pixels that pass the error test at the end (the others ran out of
+    #: budget, or were only refined as neighbours), (H, W) bool.
+    converged: np.ndarray
+
+    @property
+    def samples(self) -> int:
+        return int(self.spp.sum())
+
+    @property
+    def rgb(self) -> np.ndarray:
+        return self.image[..., :3]
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Per-pixel sample variance of R, G, B (float64)."""
+        return self.stats.variance
+
+    @property
+    def standard_error(self) -> np.ndarray:
+        """Per-pixel i.i.d. standard error of the R, G, B means (float64)."""
+        return self.stats.standard_error
+
+    @property
+    def nonfinite(self) -> np.ndarray:
+        return self.stats.nonfinite
+
+    def layers(self) -> dict[str, np.ndarray]:
+        """Float32 layers for :func:`mcrt.io.write_exr`."""
+        return {"rgb": self.image.astype(np.float32),
+                "variance": self.variance.astype(np.float32),
+                "stderr": self.standard_error.astype(np.float32),
+                "stderr_y": self.luminance_stderr.astype(np.float32),
+                "spp": self.spp.astype(np.float32),
+                "nonfinite": self.nonfinite.astype(np.float32)}
+
+    def summary(self) -> dict:
+        """Scalars for metadata and reports."""
+        return {"adaptive": 1, "passes": len(self.passes), "samples": self.samples,
+                "mean_spp": round(self.samples / self.spp.size, 3),
+                "min_spp_used": int(self.spp.min()), "max_spp_used": int(self.spp.max()),
+                "nonfinite_samples": int(self.nonfinite.sum()),
+                "render_seconds": round(self.seconds, 6),
+                "batch_ladder": " ".join(map(str, self.batch_ladder)),
+                **{f"adaptive_{k}": v for k, v in asdict(self.settings).items()}}
+
+
+def pass_time_fit(passes: list[PassRecord]) -> dict[str, float]:
+    """Least-squares line ``seconds = intercept + slope * samples`` over passes,
+    with R^2 (the check that a pass costs time in proportion to its samples)."""
+    x = np.array([p.samples for p in passes], dtype=np.float64)
+    y = np.array([p.seconds for p in passes], dtype=np.float64)
+    if x.size < 2 or np.ptp(x) == 0:
+        return {"intercept": float(y.mean()) if y.size else 0.0, "slope": 0.0, "r2": 0.0,
+                "passes": float(x.size)}
+    slope, intercept = np.polyfit(x, y, 1)
+    residual = y - (intercept + slope * x)
+    total = np.sum((y - y.mean()) ** 2)
+    r2 = 1.0 - float(np.sum(residual ** 2) / total) if total > 0 else 1.0
+    return {"intercept": float(intercept), "slope": float(slope), "r2": r2,
+            "passes": float(x.size)}
+
+
+__all__ = ["AdaptiveRender", "PassRecord", "pass_time_fit"]
