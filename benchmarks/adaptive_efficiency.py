@@ -46,9 +46,10 @@ import numpy as np
 
 import mcrt  # noqa: F401  (registers the plugins)
 from mcrt.analysis.reference import get_reference
+from mcrt.core.render import render_film
+from mcrt.core.sampling import make_sampler
 from mcrt.render.adaptive import AdaptiveSettings, pass_time_fit, render_adaptive
-from mcrt.render.passes import render_film
-from mcrt.render.scene import load_scene, make_sampler
+from mcrt.render.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "edges.xml"

@@ -40,8 +40,8 @@ import numpy as np
 
 import mcrt  # noqa: F401  (variant, plugins)
 from mcrt.analysis.metrics import rel_mse
+from mcrt.core.render import render_film
 from mcrt.render.motion import strobing_index
-from mcrt.render.passes import render_film
 from mcrt.render.plan import plan_scene
 from mcrt.render.scene import load_scene
 

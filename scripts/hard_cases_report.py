@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import test_hard_cases as hard  # noqa: E402
 
-from mcrt.render.scene import quiet_sampler_warnings  # noqa: E402
+from mcrt.core.sampling import quiet_sampler_warnings  # noqa: E402
 from mcrt.samplers import ALL_SAMPLERS  # noqa: E402
 
 

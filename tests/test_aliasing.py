@@ -174,8 +174,8 @@ def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(c
     must also exceed each noisy sampler's by Z_THRESHOLD: the noisy z-scores
     over those seeds lie in [-3.6, 2.8] (Poisson-disk's 2.8 at 16 spp is seed
     0's), the grid's are 24.9 / 11.0, a separation of at least 8.2."""
-    from mcrt.render.passes import render_film
-    from mcrt.render.scene import make_sampler
+    from mcrt.core.render import render_film
+    from mcrt.core.sampling import make_sampler
 
     scene, reference = checkerboard
     scores = {}

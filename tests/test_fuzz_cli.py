@@ -50,7 +50,7 @@ STUBBED = ("render_film", "render_stats", "render_adaptive", "run_convergence", 
 MODULES = ("mcrt.cli.render_cmd", "mcrt.cli.reference_cmd", "mcrt.cli.compare_cmd",
            "mcrt.cli.pattern_cmd", "mcrt.cli.integrate_cmd", "mcrt.cli.plan_cmd",
            "mcrt.cli.demo_cmd", "mcrt.analysis.reference", "mcrt.analysis.study",
-           "mcrt.analysis.integrate", "mcrt.render.adaptive", "mcrt.render.passes",
+           "mcrt.analysis.integrate", "mcrt.render.adaptive", "mcrt.core.render",
            "mcrt.samplers.points")
 
 TINY = TINY_SCENE

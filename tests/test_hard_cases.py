@@ -61,11 +61,11 @@ from conftest import run_cli
 
 from mcrt.analysis.metrics import bias
 from mcrt.analysis.reference import get_reference
+from mcrt.core.render import render_film, render_stats
+from mcrt.core.sampling import make_sampler
 from mcrt.core.stats import PixelStats
 from mcrt.io import read_exr
-from mcrt.render.passes import render_film, render_stats
 from mcrt.render.plan import PlannedScene, plan_scene
-from mcrt.render.scene import make_sampler
 from mcrt.samplers import ALL_SAMPLERS
 
 REPO = Path(__file__).resolve().parents[1]

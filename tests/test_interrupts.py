@@ -13,10 +13,11 @@ from conftest import run_cli, small_cornell
 
 import mcrt.cli.reference_cmd as reference_cmd
 import mcrt.cli.render_cmd as render_cmd
-from mcrt.analysis.reference import ReferenceInterrupted, get_reference
+from mcrt.analysis.reference import get_reference
+from mcrt.core.job import Interrupted
+from mcrt.core.render import render_film
+from mcrt.core.sampling import make_sampler
 from mcrt.io import read_exr
-from mcrt.render.passes import RenderInterrupted, render_film
-from mcrt.render.scene import make_sampler
 
 CORNELL = str(Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml")
 #: 16x16 pixels, 16 spp in 4 passes of 4 (a small lane budget forces passes).
@@ -38,10 +39,10 @@ def test_interrupted_render_resumes_bit_identically(name):
     the uninterrupted one bit for bit."""
     scene = small_cornell(16, box_filter=False)  # Gaussian filter: the hard case
     whole = render_film(scene, make_sampler(name, 16), seed=5, passes=4)
-    with pytest.raises(RenderInterrupted) as stop:
+    with pytest.raises(Interrupted) as stop:
         render_film(scene, make_sampler(name, 16), seed=5, passes=4, on_pass=interrupt_at(2))
-    partial, state = stop.value.partial, stop.value.checkpoint
-    assert partial.spp == 8 and partial.passes == 2 and state.passes_done == 2
+    partial, state = stop.value.partial, stop.value.state
+    assert partial.spp == 8 and partial.passes == 2 and state.meta["done"] == 2
     assert np.isfinite(partial.image).all()
     resumed = render_film(scene, make_sampler(name, 16), seed=5, passes=4, resume=state)
     assert resumed.spp == 16 and resumed.passes == 4
@@ -54,11 +55,11 @@ def test_mitsuba_sampler_resumes_with_fresh_samples():
     interrupted ones (no repeated samples) and the result is a valid render."""
     scene = small_cornell(16, box_filter=True)
     whole = render_film(scene, make_sampler("independent", 16), seed=5, passes=4)
-    with pytest.raises(RenderInterrupted) as stop:
+    with pytest.raises(Interrupted) as stop:
         render_film(scene, make_sampler("independent", 16), seed=5, passes=4,
                     on_pass=interrupt_at(2))
     resumed = render_film(scene, make_sampler("independent", 16), seed=5, passes=4,
-                          resume=stop.value.checkpoint)
+                          resume=stop.value.state)
     assert not np.array_equal(resumed.image, whole.image)
     # Same expectation: the image means agree within the Monte Carlo noise.
     assert abs(resumed.rgb.mean() / whole.rgb.mean() - 1) < 0.05
@@ -66,9 +67,9 @@ def test_mitsuba_sampler_resumes_with_fresh_samples():
 
 def test_interrupt_before_the_first_pass_keeps_nothing():
     scene = small_cornell(16)
-    with pytest.raises(RenderInterrupted) as stop:
+    with pytest.raises(Interrupted) as stop:
         render_film(scene, make_sampler("jittered", 16), passes=4, on_pass=interrupt_at(0))
-    assert stop.value.partial is None and stop.value.checkpoint.passes_done == 0
+    assert stop.value.partial is None and stop.value.state.meta["done"] == 0
 
 
 
@@ -99,9 +100,9 @@ def record_passes(monkeypatch) -> list[int]:
 @pytest.fixture
 def four_passes(monkeypatch):
     """A lane budget that splits the CLI's 16x16, 16 spp render into 4 passes."""
-    import mcrt.render.passes as passes
+    import mcrt.core.engine as engine
 
-    monkeypatch.setattr(passes, "MAX_LANES_PER_PASS", 16 * 16 * 4)
+    monkeypatch.setattr(engine, "MAX_LANES_PER_PASS", 16 * 16 * 4)
 
 
 def test_cli_ctrl_c_writes_partial_and_the_next_run_resumes(tmp_path, capsys, monkeypatch,
@@ -181,9 +182,9 @@ def test_reference_interrupt_writes_a_partial_exr_and_resumes(tmp_path, capsys, 
         if index == 1:
             raise KeyboardInterrupt
 
-    with pytest.raises(ReferenceInterrupted) as stop:
+    with pytest.raises(Interrupted) as stop:
         get_reference(CORNELL, on_pass=stop_after_two, **args)
-    assert stop.value.passes_done == 2 and stop.value.partial.stats.count.max() == 32
+    assert stop.value.done == 2 and stop.value.partial.stats.count.max() == 32
 
     real = reference_cmd.get_reference
     monkeypatch.setattr(reference_cmd, "get_reference",
@@ -203,7 +204,7 @@ def test_adaptive_render_resumes_to_the_uninterrupted_result():
     """Adaptive passes are a pure function of (seed, pass, pixel) and its sums are
     formed in a fixed order: interrupt after the second pass, resume, and the
     image and sample counts equal an uninterrupted render's, bit for bit."""
-    from mcrt.render.adaptive import AdaptiveInterrupted, AdaptiveSettings, render_adaptive
+    from mcrt.render.adaptive import AdaptiveSettings, render_adaptive
 
     scene = small_cornell(24, box_filter=True)
     settings = AdaptiveSettings(threshold=0.1, min_spp=16, max_spp=256)
@@ -216,11 +217,11 @@ def test_adaptive_render_resumes_to_the_uninterrupted_result():
         if record.index == 2:
             raise KeyboardInterrupt  # pass 2 is finished but not yet saved: dropped
 
-    with pytest.raises(AdaptiveInterrupted) as stop:
+    with pytest.raises(Interrupted) as stop:
         render_adaptive(scene, make_sampler("jittered", 16), settings, seed=3,
                         on_pass=stop_in_third_pass)
-    state = stop.value.checkpoint
-    assert state.next_pass == 2 and len(stop.value.partial.passes) == 2
+    state = stop.value.state
+    assert state.meta["next_pass"] == 2 and len(stop.value.partial.passes) == 2
     assert np.isfinite(stop.value.partial.image).all()
     resumed = render_adaptive(scene, make_sampler("jittered", 16), settings, seed=3,
                               resume=state)

@@ -2,7 +2,7 @@
 
 The streams are float32 (what an integrator hands back), laid out as
 pixel-major ``mi.Color3f`` wavefronts, reduced per pass by
-:func:`mcrt.render.passes.pass_moments` (Dr.Jit, float64 block sums) and merged
+:func:`mcrt.core.accumulators.block_moments` (Dr.Jit, float64 block sums) and merged
 across passes by :meth:`PixelStats.merge` (Chan's formula), exactly as
 :func:`render_stats` does with a render's samples. Each result is compared with
 an independent, exact-as-possible float64 computation on the *same* float32
@@ -25,8 +25,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from mcrt.core.accumulators import block_moments
 from mcrt.core.stats import PixelStats, chan_merge
-from mcrt.render.passes import pass_moments
 
 REL = 1e-6
 
@@ -52,10 +52,11 @@ def wavefront(streams: np.ndarray) -> mi.Color3f:
 
 
 def pass_stats(streams: np.ndarray) -> PixelStats:
-    """One pass of (pixels, group, 3) samples reduced by ``pass_moments``,
+    """One pass of (pixels, group, 3) samples reduced by ``block_moments``,
     converted to :class:`PixelStats` of shape (1, pixels) like ``render_stats``."""
     pixels, group, _ = streams.shape
-    count, means, m2, bad = pass_moments(wavefront(streams), group)
+    rgb = wavefront(streams)
+    count, means, m2, bad = block_moments([mi.Float64(c) for c in (rgb.x, rgb.y, rgb.z)], group)
     shape = (1, pixels)
     return PixelStats(
         count=np.array(count, dtype=np.float64).astype(np.int64).reshape(shape),
@@ -116,7 +117,7 @@ def test_mean_1e4_sigma_1_million_samples():
 def test_bright_pixel_where_naive_float32_variance_goes_negative():
     """mean 1000, sigma 1, 16384 samples: sequential float32 E[x^2]-E[x]^2 is
     off by more than the variance itself (it is -2.0 with the issue's stream);
-    pass_moments + Chan (16 passes of 1024) match the exact 0.99."""
+    block_moments + Chan (16 passes of 1024) match the exact 0.99."""
     rng = np.random.default_rng(0)
     x = (1000 + rng.standard_normal(16384)).astype(np.float32)
     n32 = np.float32(x.size)

@@ -27,11 +27,12 @@ from mcrt.analysis.reference import (
     save_state,
     scene_digest,
 )
-from mcrt.core.stats import PixelStats
 from mcrt.cli import main
+from mcrt.core.sampling import make_sampler
+from mcrt.core.stats import PixelStats
 from mcrt.errors import McrtError
 from mcrt.io import read_exr, write_exr
-from mcrt.render.scene import load_scene, make_sampler
+from mcrt.render.scene import load_scene
 from mcrt.samplers import ALL_SAMPLERS
 
 REPO = Path(__file__).resolve().parents[1]

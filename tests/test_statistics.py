@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import small_cornell
 
+from mcrt.core.render import render_film, render_stats
+from mcrt.core.sampling import make_sampler
 from mcrt.core.stats import PixelStats, chan_merge, welford_update
-from mcrt.render.passes import render_film, render_stats
-from mcrt.render.scene import make_sampler
 
 
 def test_bright_pixel_variance_where_the_naive_formula_fails():

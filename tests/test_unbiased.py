@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from conftest import OUR_SAMPLERS
 
-from mcrt.render.passes import render_film
-from mcrt.render.scene import load_scene, make_sampler
+from mcrt.core.render import render_film
+from mcrt.core.sampling import make_sampler
+from mcrt.render.scene import load_scene
 
 CORNELL = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
 

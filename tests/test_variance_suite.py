@@ -55,9 +55,9 @@ from scipy.stats import qmc
 
 from mcrt.analysis import patterns as pt
 from mcrt.analysis.integrate import DEFAULT_COUNTS, run_convergence
+from mcrt.core.render import render_stats
+from mcrt.core.sampling import make_sampler
 from mcrt.core.stats import PixelStats
-from mcrt.render.passes import render_stats
-from mcrt.render.scene import make_sampler
 from mcrt.samplers import ALL_SAMPLERS
 from mcrt.samplers.points import point_sets
 

@@ -50,28 +50,24 @@ Standard error
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import json
 import logging
-import os
-import re
-import time
-import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..cache import cache_dir
-from ..errors import McrtError, SamplerError
-from ..core.atomic import atomic_path
-from ..render.passes import deferred_interrupts, render_stats
-from ..render.plan import plan_scene
-from ..render.scene import check_sampler_name, make_sampler, quiet_sampler_warnings
-from ..render.trace import film_grid_size
-from ..samplers._hash import hash_keys_int
+from ..core.job import Checkpoint, Interrupted, Job, content_key, run_job, scene_digest, set_aside
+from ..core.progress import Progress
+from ..core.render import StatsRender, render_stats
+from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..core.stats import PixelStats
+from ..core.trace import film_grid_size
+from ..errors import McrtError, SamplerError
+from ..render.plan import plan_scene
+from ..samplers._hash import hash_keys_int
 
 log = logging.getLogger("mcrt.reference")
 
@@ -275,69 +271,9 @@ def pass_seed(seed: int, index: int) -> int:
     return hash_keys_int(seed, index, 0x5EF)
 
 
-_VAR = re.compile(r"\$(\w+)")
-
-
-def _substitute(text: str, values: dict[str, str]) -> str:
-    for _ in range(8):  # defaults may refer to other parameters ($width = $res)
-        new = _VAR.sub(lambda m: values.get(m.group(1), m.group(0)), text)
-        if new == text:
-            break
-        text = new
-    return text
-
-
-def _hash_scene_file(path: Path, params: dict[str, str], digest, seen: set[Path]) -> None:
-    """Feed ``path`` and the files it includes or names into ``digest``."""
-    path = path.resolve()
-    if path in seen:
-        return
-    seen.add(path)
-    data = path.read_bytes()
-    digest.update(b"file\0%d\0" % len(data) + data)
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError:
-        return  # Mitsuba will report it; the bytes are hashed anyway
-    values = {el.get("name", ""): el.get("value", "") for el in root.iter("default")}
-    values.update(params)
-    for el in root.iter():
-        if el.tag == "include":
-            name = el.get("filename")
-        elif el.get("name") == "filename":
-            name = el.get("value")
-        else:
-            continue
-        if not name:
-            continue
-        name = _substitute(name, values)
-        target = (path.parent / name) if not os.path.isabs(name) else Path(name)
-        digest.update(b"ref\0" + name.encode() + b"\0")
-        if not target.is_file():
-            digest.update(b"missing\0")
-        elif el.tag == "include" or target.suffix.lower() == ".xml":
-            _hash_scene_file(target, params, digest, seen)
-        else:
-            digest.update(hashlib.sha256(target.read_bytes()).digest())
-
-
-def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:
-    """SHA-256 of a scene's content: the XML, the XML files it includes and the
-    files it names (``<string name="filename" .../>``), resolved relative to the
-    scene with ``$params`` and ``<default>`` values substituted."""
-    digest = hashlib.sha256()
-    _hash_scene_file(Path(scene_path), dict(params or {}), digest, set())
-    return digest.hexdigest()
-
-
 def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: str, seed: int,
                 plan: PassPlan) -> dict:
     """Everything a reference's bits depend on (see :func:`reference_key`)."""
-    import drjit as dr
-    import mitsuba as mi
-
-    from .. import __version__
-
     return {
         "format": CACHE_FORMAT,
         "scene": scene_digest(scene_path, params),
@@ -347,17 +283,13 @@ def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: 
         "spp": plan.requested_spp,
         "plan": [plan.pass_spp, plan.full_passes, list(plan.tail)],
         "lane_budget": LANE_BUDGET,
-        "variant": mi.variant(),
-        "versions": [mi.__version__, dr.__version__, __version__],
     }
 
 
 def reference_key(scene_path: str | Path, params: dict[str, str] | None, sampler: str,
                   seed: int, plan: PassPlan) -> str:
-    """Cache key: SHA-256 (hex, 32 digits) of :func:`key_payload` as canonical JSON."""
-    text = json.dumps(key_payload(scene_path, params, sampler, seed, plan), sort_keys=True,
-                      separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:32]
+    """Cache key: :func:`~mcrt.core.job.content_key` of :func:`key_payload`."""
+    return content_key(key_payload(scene_path, params, sampler, seed, plan))
 
 
 # --------------------------------------------------------------------------- result
@@ -423,79 +355,69 @@ def cache_paths(key: str) -> tuple[Path, Path]:
 
 def save_state(path: Path, key: str, stats: PixelStats, passes_done: int, passes: int,
                seconds: float, complete: bool) -> None:
-    """Write a reference's running state to ``path`` atomically (``.npz``, no pickle)."""
-    meta = {"format": CACHE_FORMAT, "key": key, "complete": bool(complete),
-            "passes_done": int(passes_done), "passes": int(passes), "seconds": float(seconds)}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez(f, meta=np.array(json.dumps(meta)),
-                 count=np.asarray(stats.count, np.int64), mean=np.asarray(stats.mean, np.float64),
-                 m2=np.asarray(stats.m2, np.float64),
-                 nonfinite=np.asarray(stats.nonfinite, np.int64))
+    """Write a reference's running state to ``path`` (a :class:`Checkpoint`)."""
+    Checkpoint({"complete": bool(complete), "passes_done": int(passes_done),
+                "passes": int(passes), "seconds": float(seconds)},
+               {"count": np.asarray(stats.count, np.int64),
+                "mean": np.asarray(stats.mean, np.float64),
+                "m2": np.asarray(stats.m2, np.float64),
+                "nonfinite": np.asarray(stats.nonfinite, np.int64)}).save(path, key)
 
 
 def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
                complete: bool) -> tuple[PixelStats, int, float] | None:
     """Read a state written by :func:`save_state`; ``(stats, passes_done, seconds)``
-    if it is a valid state of ``key`` in the expected role, else None.
+    if it is an intact state of ``key`` in the expected role, else None.
 
-    Checked: format, key, role (``complete`` and passes done, so a partial state
-    is never returned as finished), array shapes and dtypes, and that every
-    pixel holds exactly the samples of the passes done.
+    Besides the checkpoint's own checks (key, checksum), checked: the role
+    (``complete`` and passes done, so a partial state is never returned as
+    finished), array shapes and dtypes, and that every pixel holds exactly the
+    samples of the passes done.
     """
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
-            arrays = {name: data[name] for name in ("count", "mean", "m2", "nonfinite")}
-    except FileNotFoundError:
+    found = Checkpoint.load(path, key)
+    if found is None:
         return None
-    except Exception as error:  # truncated, not an npz, missing member, bad JSON, ...
-        log.warning("ignoring unreadable reference cache file %s (%s)", path,
-                    type(error).__name__)
-        return None
+    meta, arrays = found.meta, found.arrays
+    if meta.get("complete") is not complete:
+        return None  # an intact state in the other role (partial vs finished)
     done = meta.get("passes_done")
     h, w = shape
-    ok = (meta.get("format") == CACHE_FORMAT and meta.get("key") == key
-          and meta.get("complete") is complete and meta.get("passes") == plan.passes
-          and isinstance(done, int)
+    expected = {"count": ((h, w), np.int64), "nonfinite": ((h, w), np.int64),
+                "mean": ((h, w, 3), np.float64), "m2": ((h, w, 3), np.float64)}
+    ok = (meta.get("passes") == plan.passes and isinstance(done, int)
           and (done == plan.passes if complete else 0 < done < plan.passes)
-          and arrays["count"].shape == (h, w) and arrays["nonfinite"].shape == (h, w)
-          and arrays["mean"].shape == (h, w, 3) and arrays["m2"].shape == (h, w, 3)
-          and arrays["count"].dtype == np.int64 and arrays["nonfinite"].dtype == np.int64
-          and arrays["mean"].dtype == np.float64 and arrays["m2"].dtype == np.float64)
+          and all(name in arrays and arrays[name].shape == shape_
+                  and arrays[name].dtype == dtype for name, (shape_, dtype) in expected.items()))
     if ok:
         ok = bool(np.all(arrays["count"] + arrays["nonfinite"] == plan.spp_before(done))
                   and np.all(arrays["m2"] >= 0) and np.isfinite(arrays["mean"]).all())
     if not ok:
-        log.warning("ignoring reference cache file %s: it does not match this reference", path)
+        set_aside(path, "not a consistent state of this reference")
         return None
-    return PixelStats(**arrays), done, float(meta.get("seconds", 0.0))
+    stats = PixelStats(**{name: arrays[name] for name in expected})
+    return stats, done, float(meta.get("seconds", 0.0))
 
 
 # --------------------------------------------------------------------------- rendering
-
-
-def _progress_bar(plan: PassPlan, done: int, enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=plan.passes, initial=done, unit="pass", desc="reference", leave=False,
-                dynamic_ncols=True)
 
 
 def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   spp: int = DEFAULT_REFERENCE_SPP, sampler: str = "independent",
                   seed: int = 0, spp_per_pass: int | None = None,
                   progress: bool = False, *, cache: bool = True,
-                  on_pass: Callable[[int, int], None] | None = None) -> Reference:
+                  on_pass: Callable[[int, int], None] | None = None,
+                  executor: Any = None) -> Reference:
     """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``.
 
-    ``params`` are the scene's ``$key`` parameters (the CLI's ``-D``). ``cache``
-    False neither reads nor writes the cache. ``on_pass(index, passes)`` runs
-    after pass ``index`` is merged and its state saved (a test hook; raising
-    there interrupts the reference, which the next call resumes). Raises
-    :class:`~mcrt.errors.McrtError` for bad arguments or scenes, before rendering.
+    A :class:`~mcrt.core.job.Job` whose tasks are the passes (each a pure
+    function of its index), folded in order with Chan's merge. ``params`` are the
+    scene's ``$key`` parameters (the CLI's ``-D``). ``cache`` False neither reads
+    nor writes the cache. ``on_pass(index, passes)`` runs after pass ``index`` is
+    merged and its state saved (a test hook; raising there interrupts the
+    reference, which the next call resumes). Ctrl-C raises
+    :class:`~mcrt.core.job.Interrupted` with the partial :class:`Reference`.
+    Raises :class:`~mcrt.errors.McrtError` for bad arguments or scenes, before
+    rendering.
     """
     params = dict(params or {})
     if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
@@ -516,80 +438,91 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     key = reference_key(scene_path, params, sampler, seed, plan)
     finished_path, partial_path = cache_paths(key)
 
-    def result(stats, seconds, cached=False, resumed=0):
+    def result(stats: PixelStats, seconds: float, cached: bool = False,
+               resumed: int = 0) -> Reference:
         return Reference(stats=stats, spp=plan.spp, sampler=sampler, seed=seed,
                          passes=plan.passes, seconds=seconds, key=key, cached=cached,
                          resumed_passes=resumed, plan=plan)
 
-    total, done, seconds = None, 0, 0.0
+    start: StatsRender | None = None
+    done, seconds = 0, 0.0
     if cache:
         found = load_state(finished_path, key, plan, (height, width), complete=True)
         if found is not None:
             return result(found[0], found[2], cached=True)
         found = load_state(partial_path, key, plan, (height, width), complete=False)
         if found is not None:
-            total, done, seconds = found
+            start = StatsRender(found[0], 0, 0, 0.0)
+            done, seconds = found[1], found[2]
             log.info("resuming reference %s after pass %d of %d", key, done, plan.passes)
-    resumed = done
 
-    bar = _progress_bar(plan, done, progress)
-    writable = cache
-    session_seconds, session_samples = 0.0, 0
-    merged = done
+    def render_pass(index: int) -> StatsRender:
+        count = plan.spp_of(index)
+        pass_sampler = make_sampler(sampler, count)
+        subframes, move = planned.schedule(pass_sampler, count, pass_seed(seed, index))
+        part = render_stats(scene, pass_sampler, seed=pass_seed(seed, index),
+                            max_lanes=LANE_BUDGET, passes=subframes, on_pass=move)
+        if part.spp != count:  # the plan only uses counts the sampler keeps
+            raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
+                               f"{index}, planned {count}")
+        return part
+
+    job = Job(key, range(plan.passes), render_pass, _merge)
+    saver = _StateSaver(key, plan, finished_path, partial_path, seconds, cache)
+    bar = Progress(plan.passes, enabled=progress, desc="reference", initial=done)
+    before = start.samples if start is not None else 0
+
+    def on_fold(count: int, merged: StatsRender) -> None:
+        saver.save(count, merged)
+        if merged.seconds > 0:
+            bar.postfix(f"{(merged.samples - before) / merged.seconds / 1e6:.2f} M samples/s")
+        bar.update(1)
+        if on_pass is not None:
+            on_pass(count - 1, plan.passes)
+
     try:
-        for index in range(done, plan.passes):
-            start = time.perf_counter()
-            count = plan.spp_of(index)
-            pass_sampler = make_sampler(sampler, count)
-            subframes, move = planned.schedule(pass_sampler, count, pass_seed(seed, index))
-            part = render_stats(scene, pass_sampler, seed=pass_seed(seed, index),
-                                max_lanes=LANE_BUDGET, passes=subframes, on_pass=move)
-            if part.spp != count:  # the plan only uses counts the sampler keeps
-                raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
-                                   f"{index}, planned {count}")
-            with deferred_interrupts():  # the merge and its count change together
-                total = part.stats if total is None else total.merge(part.stats)
-                merged = index + 1
-            elapsed = time.perf_counter() - start
-            seconds += elapsed
-            session_seconds += elapsed
-            session_samples += part.samples
-            last = index + 1 == plan.passes
-            if writable:
-                try:
-                    save_state(finished_path if last else partial_path, key, total, index + 1,
-                               plan.passes, seconds, complete=last)
-                    if last:
-                        with contextlib.suppress(OSError):
-                            partial_path.unlink()
-                except (McrtError, OSError) as error:
-                    log.warning("cannot write the reference cache (%s); continuing without it",
-                                error)
-                    writable = False
-            if bar is not None:
-                bar.set_postfix_str(f"{session_samples / session_seconds / 1e6:.2f} M samples/s",
-                                    refresh=False)
-                bar.update(1)
-            if on_pass is not None:
-                on_pass(index, plan.passes)
-    except KeyboardInterrupt:
-        if total is None:
-            raise
-        raise ReferenceInterrupted(result(total, seconds, resumed=resumed), merged) from None
+        merged = run_job(job, executor, done=done, total=start, on_fold=on_fold)
+    except Interrupted as stop:
+        if stop.partial is None:
+            raise KeyboardInterrupt from None
+        raise Interrupted(result(stop.partial.stats, seconds + stop.partial.seconds,
+                                 resumed=done), stop.done, plan.passes) from None
     finally:
-        if bar is not None:
-            bar.close()
-    return result(total, seconds, resumed=resumed)
+        bar.close()
+    assert merged is not None
+    return result(merged.stats, seconds + merged.seconds, resumed=done)
 
 
-class ReferenceInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`get_reference`: ``partial`` holds the passes merged
-    so far (their state is in the cache, so the same call resumes)."""
+def _merge(merged: StatsRender | None, part: StatsRender) -> StatsRender:
+    """Fold one pass into the running total (Chan's merge; seconds add up)."""
+    if merged is None:
+        return part
+    return StatsRender(merged.stats.merge(part.stats), part.spp, part.passes,
+                       merged.seconds + part.seconds)
 
-    def __init__(self, partial: Reference, passes_done: int) -> None:
-        super().__init__("reference interrupted")
-        self.partial = partial
-        self.passes_done = passes_done
+
+class _StateSaver:
+    """Saves a reference's state after every merged pass (partial, then finished);
+    a write failure is noted once and turns saving off, the reference goes on."""
+
+    def __init__(self, key: str, plan: PassPlan, finished: Path, partial: Path,
+                 seconds_before: float, enabled: bool) -> None:
+        self.key, self.plan, self.finished, self.partial = key, plan, finished, partial
+        self.seconds_before, self.enabled = seconds_before, enabled
+
+    def save(self, count: int, merged: StatsRender) -> None:
+        if not self.enabled:
+            return
+        last = count == self.plan.passes
+        try:
+            save_state(self.finished if last else self.partial, self.key, merged.stats, count,
+                       self.plan.passes, self.seconds_before + merged.seconds, complete=last)
+            if last:
+                with contextlib.suppress(OSError):
+                    self.partial.unlink()
+        except (McrtError, OSError) as error:
+            log.warning("cannot write the reference cache (%s); continuing without it", error)
+            self.enabled = False
 
 
 # --------------------------------------------------------------------------- output

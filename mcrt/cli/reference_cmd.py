@@ -9,13 +9,14 @@ import numpy as np
 
 from ..analysis.reference import (
     DEFAULT_REFERENCE_SPP,
-    ReferenceInterrupted,
     get_reference,
     reference_layers,
     reference_metadata,
 )
+from ..core.job import Interrupted
+from ..core.sampling import check_sampler_name
 from ..io import write_exr
-from ..render.scene import check_sampler_name, check_scene_file, parse_defines
+from ..render.scene import check_scene_file, parse_defines
 from ..samplers import ALL_SAMPLERS
 from ._common import check_output_files, non_negative_int, output_stem, positive_int
 
@@ -66,12 +67,12 @@ def run(args: argparse.Namespace) -> int:
         ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
                             seed=args.seed, spp_per_pass=args.spp_per_pass,
                             progress=not args.quiet, cache=not args.no_cache)
-    except ReferenceInterrupted as stop:
+    except Interrupted as stop:
         part = stop.partial
         meta = {**reference_metadata(part, args.scene, params), "partial": 1,
-                "passes_done": stop.passes_done, "spp": int(part.stats.count.max())}
+                "passes_done": stop.done, "spp": int(part.stats.count.max())}
         write_exr(out, reference_layers(part), meta)
-        print(f"interrupted after {stop.passes_done} of {part.passes} passes: wrote the partial "
+        print(f"interrupted after {stop.done} of {part.passes} passes: wrote the partial "
               f"reference ({int(part.stats.count.max())} of {part.spp} spp) to {out}")
         if not args.no_cache:
             print("run the same command again to resume")

@@ -10,7 +10,6 @@ finished render is kept the same way and the next run only writes it.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import logging
 import shutil
@@ -19,14 +18,19 @@ from pathlib import Path
 
 from .. import __version__
 from ..cache import cache_dir
+from ..core.job import CheckpointStore, Interrupted, content_key, scene_digest
+from ..core.render import FilmRender, render_film
+from ..core.sampling import check_sampler_name, make_sampler, sampler_name
+from ..core.sampling import sampler_params as sampler_params_of
+from ..core.trace import film_grid_size
 from ..errors import McrtError
 from ..io import write_exr, write_png
+from ..io.heatmap import write_heatmap
 from ..render import adaptive
-from ..render.passes import FilmCheckpoint, FilmRender, RenderInterrupted, render_film
 from ..render.plan import parse_effect_overrides, plan_scene
-from ..render.scene import check_sampler_name, make_sampler, parse_defines, sampler_name
-from ..render.trace import film_grid_size
+from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS
+from . import _adaptive_args
 from ._common import check_output_files, non_negative_int, output_stem, positive_int
 from .plan_cmd import add_effect_argument
 
@@ -42,6 +46,9 @@ def add_parser(commands) -> None:
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     p.add_argument("--sampler", metavar="NAME",
                    help=f"sampler plugin (default: the scene's); one of {', '.join(ALL_SAMPLERS)}")
+    p.add_argument("-P", "--sampler-param", dest="sampler_params", action="append",
+                   metavar="KEY=VALUE",
+                   help="a parameter of the --sampler plugin (e.g. -P jitter=0.5); repeatable")
     p.add_argument("--spp", type=positive_int, metavar="N",
                    help="samples per pixel (default: the scene's)")
     p.add_argument("--seed", type=non_negative_int, default=0, metavar="S", help="seed (default 0)")
@@ -50,7 +57,7 @@ def add_parser(commands) -> None:
     p.add_argument("-o", "--output", metavar="OUT",
                    help="output path without extension (default: <scene>_<sampler>)")
     add_effect_argument(p)  # the render follows the scene's plan (see `mcrt plan`)
-    adaptive.add_cli_arguments(p)
+    _adaptive_args.add_cli_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -59,26 +66,25 @@ def run(args: argparse.Namespace) -> int:
     if args.sampler is not None:
         check_sampler_name(args.sampler)
     params = parse_defines(args.defines)
+    sampler_params = parse_sampler_params(args.sampler_params, args.sampler)
     overrides = parse_effect_overrides(args.effect)
     planned = plan_scene(args.scene, params, overrides)
     scene = planned.scene
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
     spp = args.spp or scene_sampler.sample_count()
-    sampler = make_sampler(name, spp, args.seed) if args.sampler else scene_sampler
+    sampler = make_sampler(name, spp, **sampler_params) if args.sampler else scene_sampler
     stem = output_stem(args.output, f"{Path(args.scene).stem}_{name}")
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
-    adaptive_settings = adaptive.cli_settings(args, scene, planned.plan)
+    adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
     heat_path = stem.with_name(stem.name + "_spp.png") if adaptive_settings else None
     check_output_files(exr_path, png_path, *([heat_path] if heat_path else []))
     check_free_space(exr_path.parent, scene)
-    metadata = {"mcrt_version": __version__, "scene": str(args.scene), "sampler": name,
-                "seed": args.seed, "defines": " ".join(f"{k}={v}" for k, v in params.items()),
-                "effects": ",".join(planned.plan.effects_on)}
+    metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
     if adaptive_settings is not None:
         metadata["plan"] = planned.plan.to_json()
         key = render_key(args.scene, params, overrides, name, 0, args.seed, None,
-                         adaptive=asdict(adaptive_settings))
+                         adaptive=asdict(adaptive_settings), sampler_params=sampler_params)
         return _run_adaptive(args, scene, sampler, name, adaptive_settings, metadata,
                              (exr_path, png_path, heat_path), key)
 
@@ -87,41 +93,27 @@ def run(args: argparse.Namespace) -> int:
     if sampler.sample_count() != spp:
         log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
-                     passes)
-    resume_paths = _resume_paths(exr_path, key)
-    state = next((s for s in (FilmCheckpoint.load(p, key) for p in resume_paths) if s), None)
+                     passes, sampler_params=metadata["sampler_params"])
+    store = CheckpointStore(_resume_paths(exr_path, key), key)
+    state = store.load()
     if state is not None:
-        log.info("resuming after pass %d of %d (%d of %d spp done)", state.passes_done,
-                 state.passes, state.spp * state.passes_done // state.passes, state.spp)
+        log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
     log.info("plan: %s", ", ".join(planned.plan.effects_on))
 
     try:
-        result = render_film(scene, sampler, spp=spp, seed=args.seed, progress=not args.quiet,
+        result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
                              passes=passes, on_pass=on_pass, resume=state)
-    except RenderInterrupted as stop:
-        kept = _keep(stop.checkpoint, key, resume_paths)
-        done, total = stop.checkpoint.passes_done, stop.checkpoint.passes
-        if stop.partial is not None:
-            _write(exr_path, png_path, stop.partial, {**metadata, "partial": 1,
-                                                      "spp_target": stop.checkpoint.spp})
-            print(f"interrupted after {done} of {total} passes: wrote the partial image "
-                  f"({stop.partial.spp} of {stop.checkpoint.spp} spp) to {exr_path} and "
-                  f"{png_path}")
-        else:
-            print("interrupted before the first pass finished: nothing written")
-        if kept is not None and done:
-            print(f"checkpoint {kept}: run the same command again to resume")
-        return 130
+    except Interrupted as stop:
+        return _interrupted(stop, store, exr_path, png_path, metadata)
 
     try:
         _write(exr_path, png_path, result, metadata)
     except (McrtError, OSError) as error:
-        kept = _keep(result.checkpoint, key, resume_paths)
+        kept = store.save(result.checkpoint) if result.checkpoint else None
         where = f"; the finished render is kept in {kept}: free some space and run the " \
                 f"same command again to write it without rendering" if kept else ""
         raise McrtError(f"{error}{where}") from None
-    for path in resume_paths:
-        path.unlink(missing_ok=True)
+    store.discard()
     height, width = result.image.shape[:2]
     print(f"sampler {name}  spp {result.spp}  {width}x{height}  passes {result.passes}  "
           f"time {result.seconds:.2f} s  {result.samples_per_second / 1e6:.2f} M samples/s")
@@ -130,6 +122,59 @@ def run(args: argparse.Namespace) -> int:
               f"{int((result.nonfinite > 0).sum())} pixels affected)")
     print(f"wrote {exr_path} and {png_path}")
     return 0
+
+
+def _interrupted(stop: Interrupted, store: CheckpointStore, exr_path: Path, png_path: Path,
+                 metadata: dict) -> int:
+    """Ctrl-C / SIGTERM: write the finished passes as a partial image and keep a checkpoint."""
+    partial = stop.partial
+    kept = store.save(partial.checkpoint) if partial is not None and partial.checkpoint else None
+    if partial is not None:
+        target = partial.checkpoint.meta["settings"][0] if partial.checkpoint else partial.spp
+        _write(exr_path, png_path, partial, {**metadata, "partial": 1, "spp_target": target})
+        print(f"interrupted after {stop.done} of {stop.total} passes: wrote the partial image "
+              f"({partial.spp} spp) to {exr_path} and {png_path}")
+    else:
+        print("interrupted before the first pass finished: nothing written")
+    if kept is not None:
+        print(f"checkpoint {kept}: run the same command again to resume")
+    return 130
+
+
+def render_metadata(scene: str, params: dict[str, str], sampler, seed: int, plan) -> dict:
+    """What an output's header records: everything needed to reproduce it."""
+    import mitsuba as mi
+
+    return {"mcrt_version": __version__, "scene": str(scene), "sampler": sampler_name(sampler),
+            "sampler_params": json.dumps(sampler_params_of(sampler), sort_keys=True),
+            "seed": seed, "variant": mi.variant(),
+            "defines": " ".join(f"{k}={v}" for k, v in params.items()),
+            "effects": ",".join(plan.effects_on)}
+
+
+def parse_sampler_params(items: list[str] | None, sampler: str | None) -> dict:
+    """``-P key=value`` items to plugin parameters (numbers and booleans typed)."""
+    params: dict = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise McrtError(f"-P expects key=value, got {item!r}")
+        params[key.strip()] = _typed(value.strip())
+    if params and sampler is None:
+        raise McrtError("-P sets parameters of the sampler given with --sampler")
+    return params
+
+
+def _typed(text: str):
+    lowered = text.lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -> None:
@@ -155,11 +200,10 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     RGB, variance, standard error and sample counts, and a PNG heat map of the
     sample counts. Ctrl-C and resume work as for fixed-spp renders."""
     exr_path, png_path, heat_path = paths
-    resume_paths = _resume_paths(exr_path, key)
-    state = next((s for s in (adaptive.AdaptiveCheckpoint.load(p, key) for p in resume_paths)
-                  if s), None)
+    store = CheckpointStore(_resume_paths(exr_path, key), key)
+    state = store.load()
     if state is not None:
-        log.info("resuming after adaptive pass %d", state.next_pass)
+        log.info("resuming after adaptive pass %d", state.meta["next_pass"])
     grid = film_grid_size(scene.sensors()[0].film())
     pixels = int(grid[0]) * int(grid[1])
 
@@ -177,26 +221,25 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
         meta.pop("render_seconds", None)  # no timings: equal renders, equal files
         write_exr(exr_path, result.layers(), meta)
         write_png(png_path, result.rgb)
-        adaptive.write_heatmap(heat_path, result.spp, settings.min_spp, settings.max_spp)
+        write_heatmap(heat_path, result.spp, settings.min_spp, settings.max_spp)
 
     try:
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
                                           on_pass=report, resume=state)
-    except adaptive.AdaptiveInterrupted as stop:
-        kept = _keep(stop.checkpoint, key, resume_paths)
-        done = stop.checkpoint.next_pass
+    except Interrupted as stop:
+        kept = store.save(stop.state) if stop.state is not None and stop.done else None
+        done = stop.done
         if stop.partial is not None:
             write(stop.partial, {"partial": 1})
             print(f"interrupted after {done} adaptive passes ({stop.partial.samples} samples): "
                   f"wrote the partial image to {exr_path}, {png_path} and {heat_path}")
         else:
             print("interrupted before the first pass finished: nothing written")
-        if kept is not None and done:
+        if kept is not None:
             print(f"checkpoint {kept}: run the same command again to resume")
         return 130
     write(result, {})
-    for path in resume_paths:
-        path.unlink(missing_ok=True)
+    store.discard()
     height, width = result.image.shape[:2]
     spp = result.spp
     rate = result.samples / result.seconds / 1e6 if result.seconds > 0 else float("inf")
@@ -211,34 +254,13 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     return 0
 
 
-def _keep(state, key: str, paths: tuple[Path, ...]) -> Path | None:
-    """Save a checkpoint next to the output, else in the cache; None if neither works."""
-    if state is None:
-        return None
-    for path in paths:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            state.save(path, key)
-            return path
-        except (McrtError, OSError) as error:
-            log.warning("cannot save the checkpoint to %s (%s)", path, error)
-    return None
-
-
 def render_key(scene: str, params: dict[str, str], overrides: dict[str, bool], sampler: str,
                spp: int, seed: int, passes: int | None, **settings) -> str:
     """Identity of a render for resuming: the scene's content and every setting."""
-    import drjit as dr
-    import mitsuba as mi
-
-    from ..analysis.reference import scene_digest
-
-    payload = {"scene": scene_digest(scene, params), "params": sorted(params.items()),
-               "effects": sorted(overrides.items()), "sampler": sampler, "spp": spp,
-               "seed": seed, "passes": passes, "settings": settings, "variant": mi.variant(),
-               "versions": [mi.__version__, dr.__version__, __version__]}
-    text = json.dumps(payload, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:32]
+    return content_key({"kind": "render", "scene": scene_digest(scene, params),
+                        "params": sorted(params.items()), "effects": sorted(overrides.items()),
+                        "sampler": sampler, "spp": spp, "seed": seed, "passes": passes,
+                        "settings": settings})
 
 
 def check_free_space(directory: Path, scene) -> None:

@@ -5,7 +5,10 @@ can choose which lanes to trace (all pixels, passes, compacted adaptive
 wavefronts) and what to do with each sample's value (develop a film, or keep
 exact per-pixel statistics). Mitsuba's own camera-sample order is kept:
 pixel position (2D), then the lens (2D) only if the sensor has an aperture,
-then time (1D) only if the shutter is open for a non-zero time.
+then time (1D) only if the shutter is open for a non-zero time, then the
+wavelengths (1D) in spectral variants. The radiance is turned into the linear
+RGB an ``ImageBlock`` stores, as ``ImageBlock::put`` does: spectra through the
+CIE curves, a monochrome value copied into the three channels.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ class CameraSamples:
     pixel: mi.Vector2i
     #: Continuous film position where the sample lands (for the film's filter).
     position: mi.Vector2f
-    #: Sensor-weighted radiance of the sample (linear sRGB).
+    #: Sensor-weighted radiance of the sample (linear sRGB, whatever the variant).
     rgb: mi.Color3f
     #: Whether the integrator produced a valid sample (alpha).
     valid: mi.Bool
@@ -53,6 +56,16 @@ def pixel_of_index(film: mi.Film, index: mi.UInt32) -> mi.Vector2i:
     return pos + mi.Vector2i(film.crop_offset())
 
 
+def to_rgb(value: mi.Spectrum, wavelengths: mi.Spectrum,
+           active: mi.Bool | bool = True) -> mi.Color3f:
+    """The linear RGB an ``ImageBlock`` stores for a radiance ``value``."""
+    if mi.is_spectral:
+        return mi.spectrum_to_srgb(value, wavelengths, active)
+    if mi.is_monochromatic:
+        return mi.Color3f(value[0])
+    return mi.Color3f(value)
+
+
 def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
           integrator: mi.SamplingIntegrator, pixel: mi.Vector2i, spp: int,
           active: mi.Bool | bool = True) -> CameraSamples:
@@ -77,12 +90,16 @@ def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
     if sensor.shutter_open_time() > 0:
         time += sampler.next_1d(active) * sensor.shutter_open_time()
 
-    # mcrt renders RGB variants only: no wavelength dimension is drawn.
-    ray, ray_weight = sensor.sample_ray_differential(time, 0.0, adjusted, aperture, active)
+    wavelength = mi.Float(0.0)
+    if mi.is_spectral:
+        wavelength = sampler.next_1d(active)
+
+    ray, ray_weight = sensor.sample_ray_differential(time, wavelength, adjusted, aperture, active)
     if ray.has_differentials:
         ray.scale_differential(dr.rsqrt(float(spp)))
 
     spec, valid, aovs = integrator.sample(scene, sampler, ray, sensor.get_medium(), active)
-    return CameraSamples(pixel=pixel, position=position, rgb=mi.Color3f(ray_weight * spec),
+    return CameraSamples(pixel=pixel, position=position,
+                         rgb=to_rgb(ray_weight * spec, ray.wavelengths, active),
                          valid=mi.Bool(valid),
                          aovs=list(aovs), wavelengths=ray.wavelengths)

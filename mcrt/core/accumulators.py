@@ -1,0 +1,263 @@
+"""Accumulators of the pass engine: a filtered film and per-pixel moments.
+
+Both keep float64 sums on the device and fold each pass in elementwise, in a
+fixed order, with no atomic adds: a render is bit-identical across runs and
+thread counts (Mitsuba's ``ImageBlock.put`` adds with atomics, whose order
+depends on thread scheduling). A sample with a non-finite channel is left out
+entirely (no value, no weight) and counted for the pixel it was drawn in.
+
+Passes of one sample per pixel (large films) are folded in inside the tracing
+kernel itself: nothing per lane is ever stored. Passes of several samples per
+pixel store the pass's values (at most :data:`~mcrt.core.engine.MAX_LANES_PER_PASS`
+lanes) and reduce them per pixel, each pixel's samples in sample order.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import McrtError
+from .stats import PixelStats
+from .trace import CameraSamples, film_grid_size
+
+
+def _finite(values: list[mi.Float]) -> mi.Bool:
+    finite = dr.isfinite(values[0])
+    for v in values[1:]:
+        finite &= dr.isfinite(v)
+    return finite
+
+
+def _numpy(array, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+    return np.array(array, dtype=np.float64).astype(dtype).reshape(shape)
+
+
+class FilmAccumulator:
+    """Filter-weighted sums of a film's image block (weight channel included).
+
+    :meth:`develop` hands them to the film, which normalises by the weights and
+    converts to its pixel format, so a render equals what ``mi.render`` develops
+    from the same samples.
+    """
+
+    def __init__(self, film: mi.Film, channels: int) -> None:
+        block = film.create_block()
+        self.film = film
+        self.offset = block.offset()
+        self.border = int(block.border_size())
+        size = block.size()
+        self.ext = (int(size[0]) + 2 * self.border, int(size[1]) + 2 * self.border)  # (w, h)
+        self.origin = (int(self.offset[0]) - self.border,
+                       int(self.offset[1]) - self.border)  # film pixel of block (0, 0)
+        grid = film_grid_size(film)
+        self.grid = (int(grid[0]), int(grid[1]))
+        inset = int(film.rfilter().border_size()) if film.sample_border() else 0
+        crop = film.crop_offset()
+        self.grid_origin = (int(crop[0]) - inset, int(crop[1]) - inset)
+        self.channels = channels
+        rfilter = film.rfilter()
+        self.box = bool(rfilter.is_box_filter()) and self.ext == self.grid \
+            and self.origin == self.grid_origin
+        reach = 0 if self.box else math.ceil(rfilter.radius() + 0.5) - 1
+        self.offsets = [(dx, dy) for dy in range(-reach, reach + 1)
+                        for dx in range(-reach, reach + 1)]
+        self.sums = [dr.zeros(mi.Float64, self.ext[0] * self.ext[1]) for _ in range(channels)]
+        self.nonfinite = dr.zeros(mi.UInt32, self.grid[0] * self.grid[1])
+        self._pending: tuple[list[mi.Float64], mi.UInt32] | None = None
+
+    # -- the engine's interface ------------------------------------------------
+    def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
+        if len(values) != self.channels:
+            raise McrtError(f"the film expects {self.channels} channels, got {len(values)}")
+        finite = _finite(values)
+        kept = [dr.select(finite, v, 0.0) for v in values]
+        bad = dr.select(finite, mi.UInt32(0), mi.UInt32(1))
+        if group == 1 and self.box:  # one sample per pixel and lane: fold in while tracing
+            sums = [s + mi.Float64(v) for s, v in zip(self.sums, kept)]
+            nonfinite = self.nonfinite + bad
+        else:
+            position = mi.Point2f(samples.position)
+            dr.eval(kept, bad, position)  # the pass's samples (and the sampler's next state)
+            nonfinite = self.nonfinite + (bad if group == 1 else dr.block_sum(bad, group))
+            if self.box:
+                # float64: Dr.Jit's float32 block_sum drifts (2^14+ copies of 0.3 sum to
+                # 2e-5 relative off).
+                sums = [s + dr.block_sum(mi.Float64(v), group) for s, v in zip(self.sums, kept)]
+            else:
+                sums = [s + t for s, t in zip(self.sums, self._gathered(kept, position, group))]
+        dr.eval(sums, nonfinite)
+        self._pending = (sums, nonfinite)
+
+    def commit(self) -> None:
+        if self._pending is not None:
+            self.sums, self.nonfinite = self._pending
+            self._pending = None
+
+    def state(self) -> dict[str, np.ndarray]:
+        w, h = self.ext
+        sums = np.stack([np.array(s, dtype=np.float64) for s in self.sums], axis=-1)
+        return {"sums": sums.reshape(h, w, self.channels),
+                "nonfinite": _numpy(self.nonfinite, (self.grid[1], self.grid[0]), np.int64)}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        w, h = self.ext
+        sums, nonfinite = state["sums"], state["nonfinite"]
+        if sums.shape != (h, w, self.channels) or nonfinite.shape != (self.grid[1], self.grid[0]):
+            raise McrtError("the saved partial render does not match this film")
+        self.sums = [mi.Float64(np.ascontiguousarray(sums[..., c]).ravel())
+                     for c in range(self.channels)]
+        self.nonfinite = mi.UInt32(nonfinite.astype(np.uint32).ravel())
+
+    # -- results ----------------------------------------------------------------
+    def develop(self, sums: np.ndarray | None = None) -> mi.TensorXf:
+        """Hand the sums to a cleared film and develop it."""
+        if sums is None:
+            sums = self.state()["sums"]
+        self.film.clear()
+        block = mi.ImageBlock(mi.TensorXf(sums.astype(np.float32)), self.offset,
+                              self.film.rfilter(), border=self.border > 0)
+        self.film.put_block(block)
+        return self.film.develop()
+
+    # -- filtered splatting -------------------------------------------------------
+    def _gathered(self, kept: list[mi.Float], position: mi.Point2f,
+                  group: int) -> list[mi.Float64]:
+        """Per block pixel: the filter-weighted sums of the samples of the pixels
+        within the filter's reach, gathered (each target sums its sources in a
+        fixed order: offsets, then samples), so no two lanes ever write one value."""
+        rfilter = self.film.rfilter()
+        w, h = self.ext
+        gw, gh = self.grid
+        t = dr.arange(mi.UInt32, w * h)
+        ty = t // w
+        target = mi.Vector2i(mi.Int32(t - ty * w) + self.origin[0],
+                             mi.Int32(ty) + self.origin[1])
+        centre = mi.Point2f(target) + 0.5
+        sources = []
+        for dx, dy in self.offsets:
+            g = target - mi.Vector2i(dx + self.grid_origin[0], dy + self.grid_origin[1])
+            inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
+            sources.append((inside, mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group))
+
+        def contributions(k: mi.UInt32, totals: list[mi.Float64]) -> list[mi.Float64]:
+            out = list(totals)
+            for inside, base in sources:
+                lane = base + k
+                pos = dr.gather(mi.Point2f, position, lane, inside)
+                weight = rfilter.eval(centre.x - pos.x) * rfilter.eval(centre.y - pos.y)
+                weight = dr.select(inside, weight, 0.0)
+                for c, v in enumerate(kept):
+                    out[c] = out[c] + mi.Float64(dr.gather(mi.Float, v, lane, inside) * weight)
+            return out
+
+        zeros = [dr.zeros(mi.Float64, w * h) for _ in kept]
+        if group == 1:
+            return contributions(mi.UInt32(0), zeros)
+        state = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group,
+                              lambda k, *s: (k + 1, *contributions(k, list(s))))
+        return list(state[1:])
+
+
+class MomentsAccumulator:
+    """Per-pixel moments ``(n, mean, M2)`` of the RGB samples, float64, each
+    sample counted for the pixel it was drawn in (box-binned), merged pass by
+    pass with Chan's formula."""
+
+    def __init__(self, film: mi.Film) -> None:
+        grid = film_grid_size(film)
+        self.grid = (int(grid[0]), int(grid[1]))
+        n = self.grid[0] * self.grid[1]
+        self.count = dr.zeros(mi.Float64, n)
+        self.mean = [dr.zeros(mi.Float64, n) for _ in range(3)]
+        self.m2 = [dr.zeros(mi.Float64, n) for _ in range(3)]
+        self.nonfinite = dr.zeros(mi.Float64, n)
+        self._pending: tuple | None = None
+
+    def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
+        channels = [mi.Float64(c) for c in values[:3]]
+        if group == 1:  # moments of one sample, folded in while tracing
+            finite = _finite(channels)
+            n_b = dr.select(finite, mi.Float64(1.0), 0.0)
+            mean_b = [dr.select(finite, c, 0.0) for c in channels]
+            m2_b = [mi.Float64(0.0)] * 3
+            bad = 1.0 - n_b
+        else:
+            n_b, mean_b, m2_b, bad = block_moments(channels, group)
+        n = self.count + n_b
+        safe = dr.maximum(n, 1.0)
+        mean, m2 = [], []
+        for m_a, q_a, m_b, q_b in zip(self.mean, self.m2, mean_b, m2_b):
+            delta = m_b - m_a
+            mean.append(dr.select(n > 0, m_a + delta * (n_b / safe), 0.0))
+            m2.append(q_a + q_b + delta * delta * (self.count * n_b / safe))
+        nonfinite = self.nonfinite + bad
+        dr.eval(n, mean, m2, nonfinite)
+        self._pending = (n, mean, m2, nonfinite)
+
+    def commit(self) -> None:
+        if self._pending is not None:
+            self.count, self.mean, self.m2, self.nonfinite = self._pending
+            self._pending = None
+
+    def stats(self) -> PixelStats:
+        w, h = self.grid
+        return PixelStats(
+            count=_numpy(self.count, (h, w), np.int64),
+            mean=np.stack([np.array(m, dtype=np.float64) for m in self.mean], -1).reshape(h, w, 3),
+            m2=np.stack([np.array(m, dtype=np.float64) for m in self.m2], -1).reshape(h, w, 3),
+            nonfinite=_numpy(self.nonfinite, (h, w), np.int64))
+
+    def state(self) -> dict[str, np.ndarray]:
+        s = self.stats()
+        return {"count": s.count, "mean": s.mean, "m2": s.m2, "nonfinite": s.nonfinite}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        w, h = self.grid
+        if state["mean"].shape != (h, w, 3):
+            raise McrtError("the saved statistics do not match this film")
+        self.count = mi.Float64(state["count"].astype(np.float64).ravel())
+        self.mean = [mi.Float64(np.ascontiguousarray(state["mean"][..., c]).ravel())
+                     for c in range(3)]
+        self.m2 = [mi.Float64(np.ascontiguousarray(state["m2"][..., c]).ravel())
+                   for c in range(3)]
+        self.nonfinite = mi.Float64(state["nonfinite"].astype(np.float64).ravel())
+
+
+def block_moments(channels: list[mi.Float64], group: int
+                  ) -> tuple[mi.Float64, list[mi.Float64], list[mi.Float64], mi.Float64]:
+    """Per block of ``group`` consecutive lanes: ``(n, mean, M2, nonfinite)`` of
+    the samples (two-pass: mean first, then squared deviations, in float64). A
+    sample with any non-finite channel is left out of all channels and counted."""
+    finite = _finite(channels)
+    dr.eval(channels, finite)
+    count = dr.block_sum(dr.select(finite, mi.Float64(1.0), 0.0), group)
+    safe = dr.maximum(count, 1.0)
+    means = [dr.block_sum(dr.select(finite, c, 0.0), group) / safe for c in channels]
+    dr.eval(count, means)
+    m2 = [dr.block_sum(dr.select(finite, dr.square(c - dr.repeat(m, group)), 0.0), group)
+          for c, m in zip(channels, means)]
+    return count, means, m2, group - count
+
+
+def sequential_block_sums(blocks: int, size: int,
+                          contributions: Callable[[mi.UInt32], list[mi.Float]],
+                          outputs: int) -> list[mi.Float64]:
+    """Per block of ``size`` consecutive lanes: the float64 sums of
+    ``contributions(lane)``, each block's lanes added in order in one kernel
+    (the same bits whatever the thread count; many outputs, one pass)."""
+    first = dr.arange(mi.UInt32, blocks) * size
+
+    def body(k, *sums):
+        return (k + 1, *(total + mi.Float64(value)
+                         for total, value in zip(sums, contributions(first + k))))
+
+    state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float64, blocks)] * outputs),
+                          lambda k, *sums: k < size, body)
+    result = list(state[1:])
+    dr.eval(result)
+    return result

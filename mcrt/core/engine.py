@@ -1,0 +1,243 @@
+"""The pass engine: the one loop every mcrt render runs.
+
+A render of ``spp`` samples per pixel is traced in passes of ``group`` samples
+of every pixel (``group`` divides ``spp``). Each pass: run the ``on_pass`` hook
+(motion blur moves geometry there), trace one pixel-major wavefront
+(:func:`~mcrt.core.trace.trace`), hand the samples to an accumulator, advance
+the sampler, and commit the pass with Ctrl-C held back, so an interrupt never
+leaves half a pass in the sums. The passes of one render form *one* pattern per
+pixel: mcrt's counter-based samplers continue their sequences exactly across
+passes, Mitsuba's continue through ``advance()``.
+
+Accumulators (:mod:`mcrt.core.accumulators`) keep their sums on the device in
+float64 and combine each pass elementwise (no atomics), so a render is
+bit-identical across runs and thread counts. Their state is a dict of numpy
+arrays: that is what a checkpoint stores and what resuming restores.
+
+The pass size is a pure function of the film size and sample count
+(:func:`pass_shape`), never of the machine, so results do not depend on where
+they were computed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Protocol
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import McrtError
+from ..samplers._hash import hash_keys_int
+from ..samplers._stratified import split_sample
+from ..samplers.base import is_mcrt_sampler
+from .progress import Progress
+from .trace import CameraSamples, film_grid_size, pixel_of_index, trace
+
+#: Largest wavefront (pixels x samples per pass) traced in one kernel. Passes of
+#: one sample per pixel are never split further, so a film larger than this
+#: still renders (one pixel per lane).
+MAX_LANES_PER_PASS = 1 << 20
+
+#: Signals handled like Ctrl-C while passes run: the finished passes are kept.
+INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+@dataclass(frozen=True)
+class PassShape:
+    """How a render of ``spp`` samples per pixel over ``pixels`` is split."""
+
+    pixels: int
+    spp: int
+    group: int  # samples per pixel per pass
+
+    @property
+    def passes(self) -> int:
+        return self.spp // self.group
+
+    @property
+    def lanes(self) -> int:
+        return self.pixels * self.group
+
+
+def pass_shape(pixels: int, spp: int, max_lanes: int | None = None,
+               passes: int | None = None) -> PassShape:
+    """Largest ``group`` dividing ``spp`` with ``pixels * group <= max_lanes``
+    (at least 1), or ``spp // passes`` when the number of passes is forced."""
+    if spp < 1:
+        raise McrtError(f"a render needs at least 1 sample per pixel, got {spp}")
+    if passes is not None:
+        if passes <= 0 or spp % passes:
+            raise McrtError(f"cannot split {spp} samples per pixel into {passes} equal passes")
+        return PassShape(pixels, spp, spp // passes)
+    limit = max_lanes or MAX_LANES_PER_PASS
+    group = max((g for g in range(1, spp + 1) if spp % g == 0 and pixels * g <= limit),
+                default=1)
+    return PassShape(pixels, spp, group)
+
+
+class Accumulator(Protocol):
+    """What the engine feeds each pass into."""
+
+    def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
+        """Compute (and evaluate) the sums with this pass's ``values`` added;
+        keep them pending until :meth:`commit`."""
+
+    def commit(self) -> None:
+        """Make the pending sums current (called with interrupts held back)."""
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The sums as numpy arrays (for checkpoints and results)."""
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state` of an earlier, identical render."""
+
+
+def sampling_integrator(scene: mi.Scene) -> mi.SamplingIntegrator:
+    """The scene's integrator, checked to be one the engine can drive."""
+    integrator = scene.integrator()
+    if not isinstance(integrator, mi.SamplingIntegrator):
+        raise McrtError(f"mcrt renders with sampling integrators (path, direct, ...); this scene "
+                        f"uses {type(integrator).__name__}")
+    return integrator
+
+
+def film_values(film: mi.Film, samples: CameraSamples) -> list[mi.Float]:
+    """The channels an ``ImageBlock`` of ``film`` receives for each sample:
+    R, G, B, [A,] the weight 1, then the integrator's AOVs."""
+    values = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
+    if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+        values.append(dr.select(samples.valid, mi.Float(1.0), mi.Float(0.0)))
+    values.append(mi.Float(1.0))
+    return values + list(samples.aovs)
+
+
+def resume_seed(sampler: mi.Sampler, seed: int, passes_done: int) -> int:
+    """The seed that continues a render after ``passes_done`` passes.
+
+    mcrt's samplers are counter-based and continue their exact sequence; the
+    random state of Mitsuba's lives in C++, so they continue with a seed
+    derived from ``(seed, passes done)``: resumed passes never repeat earlier ones.
+    """
+    if passes_done == 0 or is_mcrt_sampler(sampler):
+        return seed
+    return hash_keys_int(seed, passes_done, 0x2E5)
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Hold back Ctrl-C and termination signals until the block is done, then
+    raise ``KeyboardInterrupt``. A no-op outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum))
+                for s in INTERRUPT_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if caught:
+        raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def termination_as_interrupt() -> Iterator[None]:
+    """Inside the block, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` like
+    Ctrl-C does, so a killed render keeps its finished passes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, interrupt) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+@dataclass
+class PassRun:
+    """Where a run of passes stands: passes done and render seconds so far."""
+
+    shape: PassShape
+    done: int = 0
+    seconds: float = 0.0
+
+
+def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
+               run: PassRun, seed: int, sensor: int = 0,
+               on_pass: Callable[[int, int], None] | None = None,
+               progress: Progress | None = None,
+               values: Callable[[mi.Film, CameraSamples], list[mi.Float]] = film_values) -> None:
+    """Trace passes ``run.done .. run.shape.passes - 1`` of ``scene`` into
+    ``accumulator``; ``run`` is updated after every committed pass.
+
+    ``sampler`` must have the sample count ``run.shape.spp``. Ctrl-C (and
+    SIGTERM/SIGHUP) raise ``KeyboardInterrupt`` between passes, with ``run``
+    and the accumulator holding every finished pass.
+    """
+    shape = run.shape
+    sensor_obj = scene.sensors()[sensor]
+    integrator = sampling_integrator(scene)
+    film = sensor_obj.film()
+    sampler.set_samples_per_wavefront(shape.group)
+    sampler.seed(resume_seed(sampler, seed, run.done), shape.lanes)
+    if is_mcrt_sampler(sampler):
+        for _ in range(run.done):
+            sampler.advance()  # counter-based: the exact next samples
+    pixel_index, _ = split_sample(dr.arange(mi.UInt32, shape.lanes), shape.group)
+    pixel = pixel_of_index(film, pixel_index)
+    dr.sync_thread()
+    with termination_as_interrupt():
+        for index in range(run.done, shape.passes):
+            start = time.perf_counter()
+            if on_pass is not None:
+                on_pass(index, shape.passes)
+
+            def committed(index: int = index, start: float = start) -> None:
+                run.done = index + 1
+                run.seconds += time.perf_counter() - start
+
+            trace_pass(scene, sensor_obj, integrator, sampler, pixel, shape.spp, accumulator,
+                       shape.group, values, committed)
+            if progress is not None:
+                progress.update(1)
+
+
+def trace_pass(scene: mi.Scene, sensor: mi.Sensor, integrator: mi.SamplingIntegrator,
+               sampler: mi.Sampler, pixel: mi.Vector2i, spp: int, accumulator: Accumulator,
+               group: int,
+               values: Callable[[mi.Film, CameraSamples], list[mi.Float]] = film_values,
+               committed: Callable[[], None] | None = None) -> None:
+    """The step every render repeats: trace one wavefront (``sampler`` seeded for
+    it, ``group`` consecutive lanes per pixel), advance the sampler, let the
+    accumulator fold the samples in (one kernel with the sampler's next state),
+    and commit with interrupts held back (``committed`` runs in that block)."""
+    samples = trace(scene, sensor, sampler, integrator, pixel, spp)
+    sampler.advance()
+    sampler.schedule_state()
+    accumulator.add(samples, values(sensor.film(), samples), group)
+    dr.sync_thread()
+    with deferred_interrupts():
+        accumulator.commit()
+        if committed is not None:
+            committed()
+
+
+def grid_pixels(film: mi.Film) -> tuple[int, int]:
+    """``(width, height)`` of the pixel grid a render samples."""
+    grid = film_grid_size(film)
+    return int(grid[0]), int(grid[1])

@@ -1,0 +1,275 @@
+"""Jobs: deterministic lists of tasks with a content key, one checkpoint format,
+one interruption type.
+
+* :func:`content_key` is the one identity function: the SHA-256 of everything a
+  result's bits depend on (the scene's content, settings, variant, versions).
+* :class:`Checkpoint` is the one persisted-state format (renders, adaptive
+  renders, references, studies): an ``.npz`` holding the key, JSON metadata,
+  numpy arrays and a checksum of all of them. A file that is unreadable, of
+  another key or fails its checksum is never used: it is reported in one note
+  and set aside (renamed ``*.damaged``), and the work is recomputed.
+* :class:`Interrupted` is the one exception a job raises on Ctrl-C (or
+  SIGTERM/SIGHUP): it carries the partial result and where its checkpoint is.
+* :func:`run_job` runs a job's tasks through an executor
+  (:mod:`mcrt.core.executor`) and folds their results in task order, so the
+  result does not depend on the order in which tasks finish.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import logging
+import os
+import re
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from ..errors import McrtError
+from .atomic import atomic_path
+
+log = logging.getLogger("mcrt")
+
+#: Layout version of checkpoint files; files of another format are not used.
+CHECKPOINT_FORMAT = 2
+
+
+# --------------------------------------------------------------------------- keys
+
+
+def content_key(payload: dict[str, Any]) -> str:
+    """SHA-256 (32 hex digits) of ``payload`` with the variant and the versions
+    of mcrt, Mitsuba and Dr.Jit added, as canonical JSON."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from .. import __version__
+
+    full = {**payload, "variant": mi.variant(),
+            "versions": [__version__, mi.__version__, dr.__version__]}
+    text = json.dumps(full, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+_VAR = re.compile(r"\$(\w+)")
+
+
+def _substitute(text: str, values: dict[str, str]) -> str:
+    for _ in range(8):  # defaults may refer to other parameters ($width = $res)
+        new = _VAR.sub(lambda m: values.get(m.group(1), m.group(0)), text)
+        if new == text:
+            break
+        text = new
+    return text
+
+
+def _hash_scene_file(path: Path, params: dict[str, str], digest: Any, seen: set[Path]) -> None:
+    """Feed ``path`` and the files it includes or names into ``digest``."""
+    path = path.resolve()
+    if path in seen:
+        return
+    seen.add(path)
+    data = path.read_bytes()
+    digest.update(b"file\0%d\0" % len(data) + data)
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError:
+        return  # Mitsuba will report it; the bytes are hashed anyway
+    values = {el.get("name", ""): el.get("value", "") for el in root.iter("default")}
+    values.update(params)
+    for el in root.iter():
+        if el.tag == "include":
+            name = el.get("filename")
+        elif el.get("name") == "filename":
+            name = el.get("value")
+        else:
+            continue
+        if not name:
+            continue
+        name = _substitute(name, values)
+        target = (path.parent / name) if not os.path.isabs(name) else Path(name)
+        digest.update(b"ref\0" + name.encode() + b"\0")
+        if not target.is_file():
+            digest.update(b"missing\0")
+        elif el.tag == "include" or target.suffix.lower() == ".xml":
+            _hash_scene_file(target, params, digest, seen)
+        else:
+            digest.update(hashlib.sha256(target.read_bytes()).digest())
+
+
+def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:
+    """SHA-256 of a scene's content: the XML, the XML files it includes and the
+    files it names (``<string name="filename" .../>``), resolved relative to the
+    scene with ``$params`` and ``<default>`` values substituted."""
+    digest = hashlib.sha256()
+    _hash_scene_file(Path(scene_path), dict(params or {}), digest, set())
+    return digest.hexdigest()
+
+
+# --------------------------------------------------------------------------- checkpoints
+
+
+def _checksum(key: str, meta_text: str, arrays: dict[str, np.ndarray]) -> str:
+    digest = hashlib.sha256(f"{CHECKPOINT_FORMAT}\0{key}\0{meta_text}".encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        digest.update(f"\0{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()
+
+
+@dataclass
+class Checkpoint:
+    """Persisted state of a job: JSON-ready ``meta`` and numpy ``arrays``."""
+
+    meta: dict[str, Any] = field(default_factory=dict)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def save(self, path: Path, key: str) -> None:
+        """Write atomically; a kill at any moment leaves the old file or the new one."""
+        meta_text = json.dumps(self.meta, sort_keys=True)
+        header = json.dumps({"format": CHECKPOINT_FORMAT, "key": key,
+                             "checksum": _checksum(key, meta_text, self.arrays)})
+        buffer = io.BytesIO()
+        np.savez(buffer, header=np.array(header), meta=np.array(meta_text),
+                 **{f"a_{name}": a for name, a in self.arrays.items()})
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            f.write(buffer.getvalue())
+
+    @classmethod
+    def load(cls, path: Path, key: str) -> Checkpoint | None:
+        """The checkpoint at ``path`` if it is intact and belongs to ``key``.
+
+        A missing file gives None quietly; a file of another job (another key)
+        gives None with a note and stays; a damaged one is set aside with a note.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                header = json.loads(str(data["header"]))
+                meta_text = str(data["meta"])
+                arrays = {name[2:]: data[name] for name in data.files if name.startswith("a_")}
+        except FileNotFoundError:
+            return None
+        except Exception as error:  # truncated, not an npz, bad JSON, bad CRC, ...
+            set_aside(path, f"unreadable ({type(error).__name__})")
+            return None
+        if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT:
+            set_aside(path, "of an unknown format")
+            return None
+        if header.get("key") != key:
+            log.info("%s belongs to another render or settings; not used", path)
+            return None
+        if header.get("checksum") != _checksum(key, meta_text, arrays):
+            set_aside(path, "damaged (checksum mismatch)")
+            return None
+        return cls(meta=json.loads(meta_text), arrays=arrays)
+
+
+def set_aside(path: Path, why: str) -> None:
+    """Rename a damaged file to ``*.damaged`` (never used, never silently deleted)."""
+    target = path.with_name(path.name + ".damaged")
+    try:
+        os.replace(path, target)
+        log.warning("%s is %s: moved to %s, the work is done again", path, why, target)
+    except OSError:
+        log.warning("%s is %s: not used, the work is done again", path, why)
+
+
+class CheckpointStore:
+    """Where one job keeps its checkpoint: the first of ``paths`` that can be
+    written (e.g. next to the output, else in the cache)."""
+
+    def __init__(self, paths: Iterable[Path], key: str) -> None:
+        self.paths = [Path(p) for p in paths]
+        self.key = key
+        self.saved: Path | None = None
+
+    def load(self) -> Checkpoint | None:
+        for path in self.paths:
+            found = Checkpoint.load(path, self.key)
+            if found is not None:
+                return found
+        return None
+
+    def save(self, checkpoint: Checkpoint) -> Path | None:
+        """Save to the first writable path; None (with a note) if none works."""
+        for path in self.paths:
+            try:
+                checkpoint.save(path, self.key)
+                self.saved = path
+                return path
+            except (McrtError, OSError) as error:
+                log.warning("cannot save the checkpoint to %s (%s)", path, error)
+        return None
+
+    def discard(self) -> None:
+        for path in self.paths:
+            path.unlink(missing_ok=True)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM/SIGHUP) during a job: ``partial`` is the result of the
+    work finished so far (None if nothing finished), ``done`` of ``total`` units,
+    ``state`` the :class:`Checkpoint` to resume from, ``checkpoint`` where it was
+    saved (None if not saved)."""
+
+    def __init__(self, partial: Any, done: int, total: int, state: Checkpoint | None = None,
+                 checkpoint: Path | None = None) -> None:
+        super().__init__("interrupted")
+        self.partial = partial
+        self.done = done
+        self.total = total
+        self.state = state
+        self.checkpoint = checkpoint
+
+
+# --------------------------------------------------------------------------- jobs
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@dataclass
+class Job(Generic[T, R]):
+    """A deterministic list of ``tasks``; ``run(task)`` is a pure function of its
+    task, ``fold(total, result)`` combines results in task order."""
+
+    key: str
+    tasks: Sequence[T]
+    run: Callable[[T], R]
+    fold: Callable[[R | None, R], R]
+
+
+def run_job(job: Job[T, R], executor: Any = None, done: int = 0, total: R | None = None,
+            on_fold: Callable[[int, R], None] | None = None) -> R | None:
+    """Run ``job.tasks[done:]`` and fold their results, in task order, into
+    ``total`` (the fold of the first ``done`` results). ``on_fold(count, total)``
+    runs after each fold (to checkpoint and report progress).
+
+    Ctrl-C raises :class:`Interrupted` with the fold so far as ``partial``.
+    """
+    from .executor import InProcess
+
+    executor = executor or InProcess()
+    pending: dict[int, R] = {}
+    next_index = done
+    try:
+        for index, result in executor.map(job.run, job.tasks, start=done):
+            pending[index] = result
+            while next_index in pending:
+                total = job.fold(total, pending.pop(next_index))
+                next_index += 1
+                if on_fold is not None:
+                    on_fold(next_index, total)
+    except KeyboardInterrupt as stop:
+        if isinstance(stop, Interrupted):
+            raise
+        raise Interrupted(total, next_index, len(job.tasks)) from None
+    return total

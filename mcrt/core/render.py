@@ -1,0 +1,178 @@
+"""Render a scene into a developed film or into exact per-pixel statistics.
+
+Both are the pass engine (:func:`~mcrt.core.engine.run_passes`) with one
+accumulator each: :class:`~mcrt.core.accumulators.FilmAccumulator` develops
+the scene's film (reconstruction filter and all) and
+:class:`~mcrt.core.accumulators.MomentsAccumulator` keeps float64 moments
+``(n, mean, M2)`` per pixel (box-binned). Ctrl-C raises
+:class:`~mcrt.core.job.Interrupted` carrying the passes finished so far and a
+:class:`~mcrt.core.job.Checkpoint` to resume from; mcrt's samplers resume
+bit-identically.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import McrtError
+from .accumulators import FilmAccumulator, MomentsAccumulator
+from .engine import Accumulator, PassRun, grid_pixels, pass_shape, run_passes, sampling_integrator
+from .job import Checkpoint, Interrupted
+from .progress import Progress
+from .stats import PixelStats
+
+
+@dataclass
+class FilmRender:
+    """A developed image and how it was made."""
+
+    image: np.ndarray  # (height, width, channels), float32
+    channels: list[str]
+    spp: int
+    passes: int
+    seconds: float  # wall time of the passes, synchronised (kernel compilation included)
+    pixels: int
+    nonfinite: np.ndarray  # (grid height, grid width) samples left out
+    checkpoint: Checkpoint | None = None  # the film's sums, to develop again later
+
+    @property
+    def nonfinite_samples(self) -> int:
+        """NaN/Inf samples detected and left out of the image."""
+        return int(self.nonfinite.sum())
+
+    @property
+    def samples(self) -> int:
+        return self.pixels * self.spp
+
+    @property
+    def samples_per_second(self) -> float:
+        return self.samples / self.seconds if self.seconds > 0 else float("inf")
+
+    @property
+    def rgb(self) -> np.ndarray:
+        return self.image[..., :3]
+
+
+@dataclass
+class StatsRender:
+    """Per-pixel sample statistics of a render and how they were made."""
+
+    stats: PixelStats  # over the film's sampled pixel grid (crop window [+ border])
+    spp: int
+    passes: int
+    seconds: float
+
+    @property
+    def samples(self) -> int:
+        return self.stats.samples + int(self.stats.nonfinite.sum())
+
+
+def channel_names(film: mi.Film, count: int) -> list[str]:
+    """Names of the developed film's channels (as Mitsuba's bitmap labels them)."""
+    try:
+        names = [f.name for f in film.bitmap().struct_()]
+    except Exception:  # films without a bitmap view: generic names
+        names = []
+    if len(names) != count:
+        names = (["R", "G", "B", "A"] + [f"C{i}" for i in range(4, count)])[:count]
+    return names
+
+
+def _prepare(scene: mi.Scene, sampler: mi.Sampler | None, spp: int | None,
+             sensor: int) -> tuple[mi.Film, mi.Sampler, int]:
+    sensor_obj = scene.sensors()[sensor]
+    integrator = sampling_integrator(scene)
+    film = sensor_obj.film()
+    sampler = sampler if sampler is not None else sensor_obj.sampler()
+    if spp is not None:
+        sampler.set_sample_count(spp)
+    film.prepare(integrator.aov_names())
+    return film, sampler, sampler.sample_count()
+
+
+def _run(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator, run: PassRun,
+         seed: int, sensor: int, progress: bool,
+         on_pass: Callable[[int, int], None] | None) -> None:
+    shape = run.shape
+    bar = Progress(shape.passes, enabled=progress and shape.passes > 1, initial=run.done)
+    bar.postfix(f"{shape.lanes} samples/pass")
+    try:
+        run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
+                   progress=bar)
+    finally:
+        bar.close()
+
+
+def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
+                seed: int = 0, sensor: int = 0, progress: bool = False,
+                max_lanes: int | None = None, passes: int | None = None,
+                on_pass: Callable[[int, int], None] | None = None,
+                resume: Checkpoint | None = None) -> FilmRender:
+    """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
+
+    Returns the developed film (bit-identical across runs and thread counts),
+    the effective sample count (samplers may round it), passes, wall time and
+    the per-pixel count of non-finite samples (left out of the image).
+    ``max_lanes`` caps the samples of one pass; ``passes`` forces the number of
+    passes (it must divide the sample count); ``on_pass(index, count)`` runs
+    before each pass is traced (motion-blur sub-frames). ``resume`` continues
+    from the checkpoint of an interrupted, identical render.
+    """
+    film, sampler, spp = _prepare(scene, sampler, spp, sensor)
+    width, height = grid_pixels(film)
+    run = PassRun(pass_shape(width * height, spp, max_lanes, passes))
+    channels = film.create_block().channel_count()
+    accumulator = FilmAccumulator(film, channels)
+    if resume is not None:
+        if resume.meta.get("settings") != [spp, run.shape.passes, seed]:
+            raise McrtError("the saved partial render was made with other settings")
+        accumulator.restore(resume.arrays)
+        run.done, run.seconds = int(resume.meta["done"]), float(resume.meta["seconds"])
+
+    def result() -> FilmRender:
+        state = accumulator.state()
+        array = np.array(accumulator.develop(state["sums"]), dtype=np.float32)
+        checkpoint = Checkpoint({"settings": [spp, run.shape.passes, seed], "done": run.done,
+                                 "seconds": run.seconds}, state)
+        return FilmRender(image=array, channels=channel_names(film, array.shape[-1]),
+                          spp=run.done * run.shape.group, passes=run.done, seconds=run.seconds,
+                          pixels=width * height, nonfinite=state["nonfinite"],
+                          checkpoint=checkpoint)
+
+    try:
+        _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)
+    except KeyboardInterrupt:
+        partial = result()
+        raise Interrupted(partial if run.done else None, run.done, run.shape.passes,
+                          state=partial.checkpoint) from None
+    return result()
+
+
+def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, seed: int = 0,
+                 sensor: int = 0, progress: bool = False, max_lanes: int | None = None,
+                 passes: int | None = None,
+                 on_pass: Callable[[int, int], None] | None = None) -> StatsRender:
+    """Render ``scene`` and return exact per-pixel sample moments (float64).
+
+    The pixel grid is the film's sampled grid; a sample belongs to the pixel it
+    was drawn in (box filter), whatever the scene's reconstruction filter.
+    ``max_lanes``, ``passes`` and ``on_pass`` as in :func:`render_film`.
+    """
+    film, sampler, spp = _prepare(scene, sampler, spp, sensor)
+    width, height = grid_pixels(film)
+    run = PassRun(pass_shape(width * height, spp, max_lanes, passes))
+    accumulator = MomentsAccumulator(film)
+    start = time.perf_counter()
+    _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)
+    dr.sync_thread()
+    return StatsRender(stats=accumulator.stats(), spp=spp, passes=run.done,
+                       seconds=time.perf_counter() - start)
+
+
+__all__ = ["FilmRender", "StatsRender", "channel_names", "render_film", "render_stats"]

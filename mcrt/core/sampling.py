@@ -1,0 +1,112 @@
+"""The seed route: how every render gets its sampler and its seed.
+
+A render's bits are a function of (scene content, sampler name and parameters,
+samples per pixel, seed, variant, plan), whichever way it was asked for: the
+scene's own sampler, ``--sampler``, a study cell, the Python API or the
+``adaptive`` plugin. So there is exactly one place a seed enters a render: the
+engine's ``sampler.seed(seed, lanes)`` (:func:`~mcrt.core.engine.run_passes`).
+Samplers are created here *without* a ``seed`` property (Mitsuba's and mcrt's
+samplers add that property to the seed they are given, which made
+``--sampler X --seed S`` differ from the scene's own ``X`` seeded with ``S``).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import mitsuba as mi
+
+from ..errors import SamplerError
+from ..samplers import ALL_SAMPLERS
+
+
+def mitsuba_message(error: BaseException) -> str:
+    """One line from a Mitsuba exception: no ``[file.cpp:123]`` prefix, and for
+    errors raised inside Python plugins, the final ``Type: message`` line."""
+    lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
+    if not lines:
+        return type(error).__name__
+    if len(lines) > 1 and "Traceback" in str(error):
+        line = lines[-1]
+    elif lines[0].endswith(":"):  # a heading followed by a list, e.g. unused parameters
+        line = lines[0] + " " + ", ".join(item.lstrip("- ") for item in lines[1:])
+    else:
+        line = lines[0]
+    line = re.sub(r"^\[[\w./-]+:\d+\]\s*", "", line)
+    return re.sub(r"^(?:\w+\.)*(?:SamplerError|SceneError|McrtError):\s*", "", line)
+
+
+def check_sampler_name(name: str) -> str:
+    """Return ``name`` if mcrt can render with that sampler, else raise."""
+    if name not in ALL_SAMPLERS:
+        raise SamplerError(f"unknown sampler {name!r}; choose one of: {', '.join(ALL_SAMPLERS)}")
+    return name
+
+
+def make_sampler(name: str, spp: int, **params: Any) -> mi.Sampler:
+    """Instantiate sampler plugin ``name`` with ``spp`` samples per pixel and
+    plugin ``params`` (never a seed: the render gives it, see the module doc)."""
+    check_sampler_name(name)
+    if "seed" in params:
+        raise SamplerError(f"{name}: the seed is a setting of the render (--seed), not of the "
+                           f"sampler")
+    try:
+        return mi.load_dict({"type": name, "sample_count": int(spp), **params})
+    except Exception as error:
+        raise SamplerError(f"cannot create sampler {name!r}: {mitsuba_message(error)}") from None
+
+
+#: Mitsuba's C++ class names of the built-in samplers.
+_BUILTIN_CLASSES = {"IndependentSampler": "independent", "StratifiedSampler": "stratified",
+                    "MultijitterSampler": "multijitter", "OrthogonalSampler": "orthogonal",
+                    "LowDiscrepancySampler": "ldsampler"}
+
+
+def sampler_name(sampler: mi.Sampler) -> str:
+    """Plugin name of a sampler object (ours or Mitsuba's)."""
+    plugin = getattr(sampler, "plugin_name", "")
+    if plugin:
+        return str(plugin)
+    cls = sampler.class_name()
+    return _BUILTIN_CLASSES.get(cls, cls)
+
+
+def sampler_params(sampler: mi.Sampler) -> dict[str, Any]:
+    """The plugin parameters of a sampler object besides its sample count and
+    seed, as ``make_sampler`` takes them (recorded in every output's header)."""
+    own = getattr(sampler, "_parameters", None)
+    if own is not None:
+        return dict(own())
+    params: dict[str, Any] = {}
+    for line in str(sampler).splitlines()[1:]:  # "  jitter = 1" (Mitsuba's)
+        key, sep, value = line.strip().partition(" = ")
+        if sep and key not in _NOT_PARAMETERS:
+            params[key] = value.strip()
+    if "jitter" in params:  # the one parameter of Mitsuba's samplers: a boolean
+        params["jitter"] = params["jitter"] in ("1", "true")
+    return params
+
+
+#: Lines of a Mitsuba sampler's description that are state, not parameters.
+_NOT_PARAMETERS = ("sample_count", "base_seed", "seed", "samples_per_wavefront", "wavefront_size")
+
+
+@contextmanager
+def quiet_sampler_warnings() -> Iterator[None]:
+    """Silence the "rounding the sample count" warnings of Mitsuba's and mcrt's
+    samplers, for tools that create many samplers and report the effective
+    counts themselves."""
+    level = mi.log_level()
+    logger = logging.getLogger("mcrt.samplers")
+    old = logger.level
+    mi.set_log_level(mi.LogLevel.Error)
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        mi.set_log_level(level)
+        logger.setLevel(old)
