@@ -25,6 +25,7 @@ from conftest import CHECKERBOARD, study_toml
 
 import mcrt.analysis.report as report
 import mcrt.analysis.study as study
+import mcrt.core.job as job
 from mcrt.core.stats import PixelStats
 from mcrt.errors import McrtError
 
@@ -241,7 +242,7 @@ def test_study_state(tmp_path, monkeypatch, error):
     state = study.StudyState(tmp_path / "out" / study.STATE_DIR, "key")
     state.add({"scene": "checkerboard", "sampler": "jittered", "spp_requested": 4}, None, 1.0)
     before = {state.path: state.path.read_bytes()}
-    monkeypatch.setattr(study, "open", dying_open(error, "state.json"), raising=False)
+    monkeypatch.setattr(job, "open", dying_open(error, "state.npz"), raising=False)
     with pytest.raises((KeyboardInterrupt, McrtError)) as raised:
         state.save(2.0)
     _check(state.directory, before, raised, error)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import fnmatch
 import json
 import math
 from pathlib import Path
@@ -11,8 +12,25 @@ import numpy as np
 import pytest
 from conftest import CHECKERBOARD, ROOT, study_toml
 
-from mcrt.analysis.study import ConfigError, load_config
+from mcrt.analysis.study import (
+    ConfigError,
+    SamplerSpec,
+    fit_sampler,
+    load_config,
+    summarise_cell,
+)
+from mcrt.analysis.study.fields import (
+    CELL_COLUMNS,
+    CELL_FIELDS,
+    CELL_KEYS,
+    CSV_COLUMNS,
+    DEFINITIONS,
+    FIT_FIELDS,
+    FIT_KEYS,
+    record,
+)
 from mcrt.cli import main
+from mcrt.core.stats import PixelStats
 
 QUICK = ROOT / "configs" / "quick.toml"
 FULL = ROOT / "configs" / "full.toml"
@@ -83,7 +101,7 @@ def test_check_only(tmp_path, capsys):
 def test_a_tiny_study_survives_nan_pixels(tmp_path, monkeypatch):
     """A render with a NaN pixel is counted, logged and measured as zero error
     there; every metric stays finite and the report is written (~5 s)."""
-    import mcrt.render.passes as passes
+    import mcrt.core.render as passes
     from mcrt.analysis.report import write_report
     from mcrt.analysis.study import run_study
 
@@ -103,6 +121,65 @@ def test_a_tiny_study_survives_nan_pixels(tmp_path, monkeypatch):
         assert all(math.isfinite(c[k]) for k in ("mse", "variance", "aliasing_ratio", "delta_e"))
     files = write_report(result, tmp_path / "report")
     assert files["report"].stat().st_size > 0
+    # The runner's cells and fits have exactly the declared fields, and so do the files.
+    assert [tuple(c) for c in result.cells] == [CELL_KEYS] * 4
+    assert [tuple(f) for f in result.fits] == [FIT_KEYS] * 2
+    data = json.loads(files["json"].read_text())
+    assert [tuple(c) for c in data["cells"]] == [CELL_KEYS] * 4
+    with open(files["csv"], newline="") as f:
+        assert tuple(next(csv.reader(f))) == CSV_COLUMNS
+
+
+# --------------------------------------------------------------------------- declared fields
+
+
+def _synthetic_cell(spp: int, seeds: int = 2) -> dict:
+    """A cell summarised by the study's own code from synthetic renders."""
+    rng = np.random.default_rng(spp)
+    ref = rng.random((32, 32, 3))
+    renders = [ref + rng.normal(0.0, 0.1 / spp, ref.shape) for _ in range(seeds)]
+    per_seed = [{"seed": s, "spp": spp, "seconds": 1e-3 * spp, "nonfinite": 0,
+                 "mse": float(np.mean((r - ref) ** 2)), "rel_mse": 0.1, "delta_e": 1.0,
+                 "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
+                for s, r in enumerate(renders)]
+    sampler = SamplerSpec("jittered", "jittered", {})
+    return summarise_cell("scene", sampler, spp, per_seed, PixelStats.from_images(renders),
+                          ref, np.full_like(ref, 1e-8), 1e-8, seeds)
+
+
+def test_cell_and_fit_fields_are_declared_once():
+    """A cell and a fit have exactly the declared keys, in the declared order;
+    results.csv, the definitions and the report's tables use declared fields only."""
+    from mcrt.analysis import report
+
+    cells = [_synthetic_cell(spp) for spp in (4, 16)]
+    assert all(tuple(c) == CELL_KEYS for c in cells)
+    assert tuple(fit_sampler("scene", "jittered", cells)) == FIT_KEYS
+    with pytest.raises(ValueError, match="undeclared"):
+        record(CELL_FIELDS, {**cells[0], "new_metric": 1.0})
+    with pytest.raises(ValueError, match="missing"):
+        record(CELL_FIELDS, {k: v for k, v in cells[0].items() if k != "mse"})
+
+    names = {f.name for f in CELL_FIELDS}
+    assert len(names) == len(CELL_FIELDS) and len(FIT_KEYS) == len(set(FIT_KEYS))
+    assert report.CSV_COLUMNS == CSV_COLUMNS and set(CSV_COLUMNS) <= names
+    assert [c for c in CSV_COLUMNS if c not in CELL_KEYS] == ["status", "seeds_done",
+                                                              "seeds_total"]
+    assert "per_seed" in CELL_KEYS and "per_seed" not in CSV_COLUMNS
+    # Every defined term names declared fields ("aliasing_*_z": both z-scores).
+    keys = CELL_KEYS + FIT_KEYS
+    for term in DEFINITIONS:
+        assert fnmatch.filter(keys, term), term
+    assert fnmatch.filter(keys, "aliasing_*_z") == ["aliasing_ratio_z", "aliasing_peak_z"]
+    assert {"mse", "resolved", "efficiency", "aliasing", "slope_spp"} <= set(DEFINITIONS)
+    # Every companion a table column shows (mse_sd, bias_low, ...) is a declared field.
+    suffixes = {"sd": ("_sd",), "se": ("_se",), "interval": ("_low", "_high"), "z": ("_z",)}
+    for fields in (CELL_FIELDS, FIT_FIELDS):
+        declared = {f.name for f in fields}
+        for f in fields:
+            if f.column is not None:
+                assert {f.name + s for s in suffixes.get(f.column.show, ())} <= declared, f.name
+    assert len(report.cell_header()) == len(CELL_COLUMNS) > 4  # scene, sampler, spp, ...
 
 
 # --------------------------------------------------------------------------- the quick study

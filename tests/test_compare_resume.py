@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from conftest import CHECKERBOARD, study_toml
 
-import mcrt.render.passes as passes
+import mcrt.core.render as passes
 from mcrt.analysis.study import (
     STATE_DIR,
     WARMUP_SEED,
@@ -25,8 +25,8 @@ from mcrt.analysis.study import (
     study_key,
 )
 from mcrt.cli import main
+from mcrt.core.sampling import sampler_name
 from mcrt.errors import McrtError
-from mcrt.render.scene import sampler_name
 
 CONFIG = study_toml(CHECKERBOARD, name="resume")
 
@@ -137,7 +137,7 @@ def test_ctrl_c_writes_a_partial_report_and_the_same_command_resumes(study, tmp_
     html = (out / "report.html").read_text()
     assert "(partial)</h1>" in html and "interrupted after 1 of 4 cells" in html
     assert html.count("pending") >= 3 and "1/2 seeds" in html
-    assert (out / STATE_DIR / "state.json").is_file()
+    assert (out / STATE_DIR / "state.npz").is_file()
     assert not list(out.rglob(".*.tmp"))  # atomic writes left nothing behind
 
     # 2. The same command: only the three unfinished cells are rendered.
@@ -261,14 +261,14 @@ def test_state_round_trips_and_belongs_to_one_configuration(tmp_path, notes):
         assert StudyState.open(tmp_path / "out", other).cells == {}, change
 
     # A damaged state is ignored with a note, never a crash.
-    state_file = tmp_path / "out" / STATE_DIR / "state.json"
+    state_file = tmp_path / "out" / STATE_DIR / "state.npz"
     for damage in (b"", b"{not json", b"\xff\xfe", b"[]", b'{"format": 1, "key": "x"}',
                    json.dumps({"format": 1, "key": state.key, "cells": [{"scene": 1}],
                                "references": {}}).encode()):
         state_file.write_bytes(damage)
         assert StudyState.open(tmp_path / "out", config).cells == {}, damage
-    assert any("ignoring unreadable resume state" in m for m in notes)
-    assert any("belongs to another configuration" in m for m in notes)
+    assert any("the work is done again" in m for m in notes)  # damaged: set aside
+    assert any("belongs to another job" in m for m in notes)
 
     # --restart deletes the saved state.
     state.add(_fake_cell("checkerboard", "jittered", 4), None, seconds=1.5)

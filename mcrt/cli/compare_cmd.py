@@ -3,7 +3,7 @@
 Every finished cell is saved in ``DIR/.mcrt-resume/`` as it completes. Ctrl-C
 writes the report of the finished cells, marked partial, and exits with status
 130; running the same command again resumes: saved cells are not rendered
-again (see :class:`mcrt.analysis.study.StudyState`).
+again (see :class:`mcrt.analysis.study.store.StudyState`).
 """
 
 from __future__ import annotations
@@ -16,14 +16,21 @@ import sys
 from pathlib import Path
 
 from ..analysis.report import report_files, write_report
-from ..analysis.study import STATE_DIR, StudyInterrupted, StudyState, load_config, run_study
+from ..analysis.study import (
+    STATE_DIR,
+    StudyInterrupted,
+    StudyResult,
+    StudyState,
+    load_config,
+    run_study,
+)
 from ..errors import McrtError
 from ._common import check_output_files, ensure_writable_dir
 
 log = logging.getLogger("mcrt.compare")
 
 
-def add_parser(commands) -> None:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = commands.add_parser(
         "compare", help="run a sampling study and write an HTML/CSV/JSON report",
         description="Run the study described by CONFIG.toml (scenes x samplers x sample counts "
@@ -91,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_partial(result, args: argparse.Namespace, out: Path) -> int:
+def _write_partial(result: StudyResult, args: argparse.Namespace, out: Path) -> int:
     """Ctrl-C: the report of the finished cells, marked partial; exit status 130.
 
     A second Ctrl-C while it is written leaves the previous files (atomic

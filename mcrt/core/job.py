@@ -137,8 +137,8 @@ class Checkpoint:
         header = json.dumps({"format": CHECKPOINT_FORMAT, "key": key,
                              "checksum": _checksum(key, meta_text, self.arrays)})
         buffer = io.BytesIO()
-        np.savez(buffer, header=np.array(header), meta=np.array(meta_text),
-                 **{f"a_{name}": a for name, a in self.arrays.items()})
+        members: dict[str, Any] = {f"a_{name}": a for name, a in self.arrays.items()}
+        np.savez(buffer, header=np.array(header), meta=np.array(meta_text), **members)
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             f.write(buffer.getvalue())
@@ -164,7 +164,8 @@ class Checkpoint:
             set_aside(path, "of an unknown format")
             return None
         if header.get("key") != key:
-            log.info("%s belongs to another render or settings; not used", path)
+            log.info("%s belongs to another job (other settings, scene files or versions); "
+                     "not used", path)
             return None
         if header.get("checksum") != _checksum(key, meta_text, arrays):
             set_aside(path, "damaged (checksum mismatch)")

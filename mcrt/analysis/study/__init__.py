@@ -1,0 +1,109 @@
+"""Studies: what accuracy costs in time, for scenes x samplers x sample counts x seeds.
+
+A study is described by a TOML file (see ``configs/quick.toml``)::
+
+    name = "quick"                      # optional, default: the file's stem
+    description = "..."                 # optional
+    spp = [4, 16, 64]                   # sample counts (>= 2 distinct)
+    seeds = 3                           # K seeds 0..K-1, or a list [0, 7, 9] (>= 2)
+    image_spp = 16                      # optional: spp of the report's images
+    aliasing_draws = 32                 # optional: sign-flip draws of the aliasing null
+    samplers = ["uniform_grid", "jittered",
+                {name = "jittered", label = "jitter0.5", params = {jitter = 0.5}}]
+
+    [reference]                         # high-spp image every render is compared with
+    spp = 4096
+    sampler = "independent"             # optional (default); its standard error is exact
+    seed = 0                            # optional
+    spp_per_pass = 256                  # optional
+
+    [[scenes]]
+    path = "../scenes/checkerboard.xml" # relative to the TOML file
+    name = "checkerboard"               # optional, default: the file's stem
+    params = {width = 160, height = 120}  # optional $parameters of the scene
+
+:func:`load_config` checks *everything* (keys, numbers, sampler names and
+parameters, scene files, films) before any rendering and reports the first
+problem as a one-line :class:`~mcrt.errors.McrtError`.
+
+:func:`run_study` renders, for every (scene, sampler, spp) cell, one untimed
+warm-up (kernels compile and are cached) and then one render per seed, each
+timed by :func:`mcrt.core.render.render_film`: wall time of tracing all
+passes, accumulating and developing the film, between two ``dr.sync_thread()``
+(scene loading, sampler construction, copying the image to numpy and the
+metrics are *not* included). Per cell it records, over the K seeds, the mean
+and spread of: time, MSE and relMSE against the reference, the MSE in excess
+of the reference's own noise (:func:`~mcrt.analysis.metrics.mse_excess`),
+CIEDE2000, the aliasing score of the error; and from the K images together the
+mean per-pixel variance of the pixel estimate (Welford over seeds: the real
+variance of the estimator, stratification included), the MSE of the
+seed-averaged image (``mse = mse_of_mean + (K - 1) / K * variance`` exactly) and
+its bias with a 95% interval. NaN/Inf pixels are counted (``nonfinite``),
+logged, left out of the per-pixel moments and count as zero error in the
+metrics. Cells whose MSE is below :data:`RESOLVED_FACTOR` x the reference's
+noise floor are flagged and left out of fits. Per (scene, sampler) it fits the
+log-log slope of the excess MSE against spp and against seconds, and computes
+the efficiency ``1 / (excess MSE x seconds)`` of every cell.
+
+Interruption and resume: with a :class:`StudyState` (``mcrt compare`` keeps one
+in ``<report dir>/.mcrt-resume/``) every finished cell is saved atomically as
+soon as it is done, keyed by :func:`study_key` (the configuration's content,
+the scenes' content and the software versions). A Ctrl-C raises
+:class:`StudyInterrupted`, a ``KeyboardInterrupt`` carrying the partial
+:class:`StudyResult` of the finished cells; the next run with the same key
+takes the saved cells instead of rendering them again (cells, not seeds, are
+the unit of resume: the seeds of an interrupted cell are rendered again).
+
+The package, one concern a module:
+
+* :mod:`.config` - the configuration's schema, parsing and checks;
+* :mod:`.fields` - the fields of a cell and of a fit, declared once (the JSON
+  keys, the CSV columns and the report's definitions and tables derive from it);
+* :mod:`.summary` - a cell's summary over seeds, its images, the log-log fits;
+* :mod:`.store` - the resume state;
+* :mod:`.runner` - :func:`run_study` and its result.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .config import (
+    MAX_NAME_BYTES,
+    MIN_REFERENCE_FACTOR,
+    STUDY_NULL_DRAWS,
+    WARMUP_SEED,
+    ConfigError,
+    ReferenceSpec,
+    SamplerSpec,
+    SceneSpec,
+    StudyConfig,
+    cell_keys,
+    check_config,
+    load_config,
+    parse_config,
+)
+from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, Column, Field
+from .runner import ReferenceInfo, StudyInterrupted, StudyResult, environment, run_study
+from .store import STATE_DIR, STATE_FORMAT, StudyState, reference_fingerprint, study_key
+from .summary import CellImages, cell_images, fit_sampler, summarise_cell
+
+#: The summariser under its former private name (tests/test_atomic_writes.py builds
+#: a synthetic result with it).
+_summarise_cell = summarise_cell
+
+
+def _fit_sampler(config: StudyConfig, scene: str, sampler: str,
+                 cells: list[dict[str, Any]]) -> dict[str, Any]:
+    """:func:`fit_sampler` with the former private signature (``config`` unused),
+    for tests/test_atomic_writes.py."""
+    return fit_sampler(scene, sampler, cells)
+
+
+__all__ = ["CELL_FIELDS", "FIT_FIELDS", "MAX_NAME_BYTES", "MIN_REFERENCE_FACTOR",
+           "RESOLVED_FACTOR", "STATE_DIR", "STATE_FORMAT", "STUDY_NULL_DRAWS", "WARMUP_SEED",
+           "CellImages", "Column", "ConfigError", "Field", "ReferenceInfo", "ReferenceSpec",
+           "SamplerSpec", "SceneSpec", "StudyConfig", "StudyInterrupted", "StudyResult",
+           "StudyState", "cell_images", "cell_keys", "check_config", "environment",
+           "fit_sampler", "load_config", "parse_config", "reference_fingerprint", "run_study",
+           "study_key", "summarise_cell"]

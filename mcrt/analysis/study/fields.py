@@ -1,0 +1,201 @@
+"""The fields of a study's results, declared once.
+
+Every value a study records per (scene, sampler, spp) cell is one
+:class:`Field` of :data:`CELL_FIELDS`, every value of a (scene, sampler) fit
+one of :data:`FIT_FIELDS`. Everything else is derived from these tuples:
+
+* the keys (and their order) of every cell and fit the study produces
+  (:func:`record` builds them and refuses a key that is missing or not
+  declared) and so of ``results.json`` and the resume state;
+* the columns of ``results.csv`` (:data:`CSV_COLUMNS`);
+* the report's definitions (:data:`DEFINITIONS`), its table of cells
+  (:data:`CELL_COLUMNS`) and the slope columns of its summary table
+  (:data:`FIT_COLUMNS`).
+
+How a table column shows its value (the ``show`` of a :class:`Column`):
+``text`` the value as text, ``count`` an integer, ``value`` a number,
+``sd`` a number +- the field ``<name>_sd`` (``se``: ``<name>_se``),
+``interval`` a number with ``[<name>_low, <name>_high]``, ``z`` a number
+with ``(<name>_z)``, ``flag`` nothing when true, ``Column.false`` when false.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from ..aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, Z_THRESHOLD
+from ..metrics import REL_MSE_EPSILON
+
+#: A cell whose MSE is below this multiple of the reference's noise floor cannot
+#: be measured reliably against that reference: it is flagged and left out of fits.
+RESOLVED_FACTOR = 2.0
+
+Show = Literal["text", "count", "value", "sd", "se", "interval", "z", "flag"]
+
+
+@dataclass(frozen=True)
+class Column:
+    """How a field appears as a column of one of the report's HTML tables."""
+
+    heading: str                 # plain text (escaped by the report)
+    show: Show = "value"         # see the module doc
+    scale: float = 1.0           # display factor (seconds are shown in ms)
+    false: str = ""              # what a ``flag`` column shows when the flag is false
+
+
+@dataclass(frozen=True)
+class Field:
+    """One value of a cell (or fit) of a study, and where it appears."""
+
+    name: str
+    #: the report's definition of the value ("" = none of its own)
+    definition: str = ""
+    #: the term its definition is listed under (default: ``name``)
+    term: str = ""
+    #: a key of every cell in results.json (False: a results.csv column only)
+    json: bool = True
+    #: a column of results.csv
+    csv: bool = True
+    #: its column in the report's table, if any
+    column: Column | None = None
+
+
+CELL_FIELDS: tuple[Field, ...] = (
+    Field("scene", column=Column("scene", "text")),
+    Field("sampler", column=Column("sampler", "text")),
+    Field("plugin"),
+    Field("params"),
+    Field("spp_requested"),
+    Field("spp", column=Column("spp", "count")),
+    Field("seeds"),
+    Field("seconds", column=Column("time (ms)", "sd", scale=1e3)),
+    Field("seconds_sd"),
+    Field("seconds_min"),
+    Field("mse", "mean over pixels and channels of (render - reference)^2, averaged over seeds",
+          column=Column("MSE", "sd")),
+    Field("mse_sd"),
+    Field("mse_floor", "mean squared standard error of the reference: what its own noise adds "
+                       "to every MSE"),
+    Field("mse_excess", "mse - mse_floor: unbiased estimate of the MSE against the exact image "
+                        "(render and reference independent); used for slopes and efficiency",
+          column=Column("MSE \u2212 floor")),
+    Field("mse_of_mean", "MSE of the seed-averaged image; mse = mse_of_mean + (K - 1) / K x "
+                         "variance (K seeds) exactly, so the two split the error into "
+                         "bias-like and noise parts"),
+    Field("resolved", f"mse > {RESOLVED_FACTOR:g} x mse_floor; unresolved cells are left out "
+                      "of fits and get no efficiency",
+          column=Column("", "flag", false="unresolved")),
+    Field("rel_mse", f"mean (render - reference)^2 / (reference^2 + {REL_MSE_EPSILON:g})",
+          column=Column("relMSE")),
+    Field("rel_mse_sd"),
+    Field("efficiency", "1 / (mse_excess x seconds)", column=Column("efficiency")),
+    Field("variance", "mean over pixels and channels of the per-pixel variance of the pixel "
+                      "estimate across seeds (Welford, float64; 0 for a deterministic sampler)",
+          column=Column("variance")),
+    Field("bias", "mean of (seed-averaged render - reference) with a 95% normal interval, "
+                  "sd = sqrt(sum(var_seeds / K + se_ref^2)) / M",
+          column=Column("bias [95%]", "interval")),
+    Field("bias_low"),
+    Field("bias_high"),
+    Field("delta_e", "mean CIEDE2000 of the displayed images (linear sRGB clipped to [0, 1], "
+                     "D65, Y_white = 1)",
+          column=Column("\u0394E00")),
+    Field("delta_e_sd"),
+    Field("aliasing_ratio", f"share of luminance-error energy at |f| < {DEFAULT_CUTOFF} "
+                            "cycles/pixel over that band's share of frequency bins (Hann "
+                            "window, DC excluded): white noise ~1, moire >> 1, blue noise < 1",
+          column=Column("alias ratio (z)", "z")),
+    Field("aliasing_ratio_z"),  # defined with aliasing_peak_z
+    Field("aliasing_peak", f"max / median of the error power averaged over {DEFAULT_CELLS}x"
+                           f"{DEFAULT_CELLS} frequency cells: noise ~1, coherent patterns >> 1",
+          column=Column("peak (z)", "z")),
+    Field("aliasing_peak_z", "(value - null mean) / null sd, the null from random sign flips "
+                             "of the per-pixel errors (independent pixel errors of the same "
+                             "magnitudes)", term="aliasing_*_z"),
+    Field("aliasing", f"'aliased' if either z (mean over seeds) > {Z_THRESHOLD:g}, 'blue' if "
+                      f"the ratio's z < -{Z_THRESHOLD:g}, else 'noise'",
+          column=Column("verdict", "text")),
+    Field("nonfinite"),
+    Field("per_seed", csv=False),
+    # The row's progress, written by the report for measured and pending cells alike.
+    Field("status", json=False),
+    Field("seeds_done", json=False),
+    Field("seeds_total", json=False),
+)
+
+FIT_FIELDS: tuple[Field, ...] = (
+    Field("scene"),
+    Field("sampler"),
+    Field("points"),
+    Field("cells_used"),
+    Field("cells"),
+    Field("slope_spp", "least-squares slope of log10(mse_excess) vs log10(spp) over the "
+                       "resolved cells' per-seed values (slope_*_se: its OLS standard error)",
+          column=Column("slope vs spp", "se")),
+    Field("slope_spp_se"),
+    Field("intercept_spp"),
+    Field("r2_spp"),
+    Field("slope_seconds", "the same against log10(seconds)",
+          column=Column("slope vs time", "se")),
+    Field("slope_seconds_se"),
+    Field("intercept_seconds"),
+    Field("r2_seconds"),
+    Field("efficiency_max"),
+)
+
+
+def json_keys(fields: Iterable[Field]) -> tuple[str, ...]:
+    """The keys, in order, of a record of ``fields`` (a cell or a fit)."""
+    return tuple(f.name for f in fields if f.json)
+
+
+def plain(value: Any) -> Any:
+    """JSON-ready copy keeping NaN/Inf (Python's json writes and reads them back)."""
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def record(fields: tuple[Field, ...], values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` as a record of ``fields``: the declared keys in the declared
+    order, as plain JSON-ready values (:func:`plain`).
+
+    A declared key without a value, or a value of an undeclared key, is a
+    programming error (the report would lose or invent a field): ValueError.
+    """
+    keys = json_keys(fields)
+    missing = [k for k in keys if k not in values]
+    extra = [k for k in values if k not in keys]
+    if missing or extra:
+        raise ValueError(f"record does not match its declared fields: missing {missing}, "
+                         f"undeclared {extra}")
+    return {k: plain(values[k]) for k in keys}
+
+
+#: Keys of every cell a study produces (results.json, the resume state).
+CELL_KEYS = json_keys(CELL_FIELDS)
+#: Keys of every (scene, sampler) fit.
+FIT_KEYS = json_keys(FIT_FIELDS)
+#: Columns of results.csv, in order.
+CSV_COLUMNS = tuple(f.name for f in CELL_FIELDS if f.csv)
+#: The report's definitions: term -> text, cells' then fits'.
+DEFINITIONS = {f.term or f.name: f.definition for f in CELL_FIELDS + FIT_FIELDS if f.definition}
+#: Columns of the report's table of cells.
+CELL_COLUMNS = tuple(f for f in CELL_FIELDS if f.column is not None)
+#: Columns of the report's summary table taken from the fits (slopes).
+FIT_COLUMNS = tuple(f for f in FIT_FIELDS if f.column is not None)

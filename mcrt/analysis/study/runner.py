@@ -1,0 +1,359 @@
+"""Running a study: every (scene, sampler, spp) cell, rendered per seed after a warm-up.
+
+See :mod:`mcrt.analysis.study` for what is measured and how time is taken.
+"""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import os
+import platform
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ... import __version__
+from ...core.stats import PixelStats
+from ...errors import McrtError
+from ..aliasing import aliasing_score
+from ..metrics import REL_MSE_EPSILON, delta_e_2000, error_map, mse, reference_noise_floor, rel_mse
+from .config import WARMUP_SEED, SamplerSpec, SceneSpec, StudyConfig, cell_keys, check_config
+from .store import StudyState, reference_fingerprint
+from .summary import CellImages, cell_images, fit_sampler, summarise_cell
+
+if TYPE_CHECKING:
+    import mitsuba as mi
+
+    from ...core.render import FilmRender
+    from ...render.plan import PlannedScene
+
+log = logging.getLogger("mcrt.compare")
+
+
+@dataclass
+class ReferenceInfo:
+    """What a scene's reference is and what its noise adds to every MSE."""
+
+    scene: str
+    spp: int
+    sampler: str
+    seconds: float
+    noise_floor: float           # mean squared standard error (adds to every MSE)
+    rel_noise_floor: float       # the same, weighted like relMSE
+    width: int
+    height: int
+    cached: bool = False         # taken from mcrt's reference cache, not rendered now
+
+
+@dataclass
+class StudyResult:
+    """What a study measured; ``partial`` when it was interrupted (see ``progress``)."""
+
+    config: StudyConfig
+    references: dict[str, ReferenceInfo]
+    cells: list[dict[str, Any]]
+    fits: list[dict[str, Any]]
+    reference_images: dict[str, np.ndarray]
+    images: dict[tuple[str, str], CellImages]
+    environment: dict[str, Any]
+    seconds: float
+    #: the cell being rendered when the study was interrupted, with its seeds done
+    #: (``{"scene", "sampler", "spp", "seeds_done", "seeds_total"}``), else None
+    interrupted: dict[str, Any] | None = None
+    #: cells taken from an earlier run's saved state instead of being rendered
+    resumed_cells: int = 0
+    #: how to resume a partial study (set by the command line)
+    resume_command: str | None = None
+
+    @property
+    def partial(self) -> bool:
+        """True when some cells of the configuration were not measured."""
+        return len(self.cells) < self.config.cells
+
+    @property
+    def scenes(self) -> list[str]:
+        """Scenes with a reference (all of them unless the study was interrupted)."""
+        return [s.name for s in self.config.scenes if s.name in self.references]
+
+    def pending(self) -> list[tuple[str, str, int]]:
+        """(scene, sampler label, spp) of every cell not measured, in study order."""
+        done = {(c["scene"], c["sampler"], c["spp_requested"]) for c in self.cells}
+        return [key for key in cell_keys(self.config) if key not in done]
+
+    def progress(self) -> dict[str, Any]:
+        """Cells done / total, the interrupted cell, the pending cells (JSON-ready)."""
+        return {"partial": self.partial, "cells_done": len(self.cells),
+                "cells_total": self.config.cells, "cells_resumed": self.resumed_cells,
+                "seeds_per_cell": len(self.config.seeds), "interrupted": self.interrupted,
+                "pending": [{"scene": a, "sampler": b, "spp": c} for a, b, c in self.pending()],
+                "resume": self.resume_command if self.partial else None}
+
+    def cell(self, scene: str, sampler: str, spp: int) -> dict[str, Any]:
+        for c in self.cells:
+            if (c["scene"], c["sampler"], c["spp_requested"]) == (scene, sampler, spp):
+                return c
+        raise KeyError((scene, sampler, spp))
+
+    def fit(self, scene: str, sampler: str) -> dict[str, Any]:
+        for f in self.fits:
+            if (f["scene"], f["sampler"]) == (scene, sampler):
+                return f
+        raise KeyError((scene, sampler))
+
+
+class StudyInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_study`; ``result`` holds the finished cells."""
+
+    def __init__(self, result: StudyResult):
+        super().__init__("study interrupted")
+        self.result = result
+
+
+def environment() -> dict[str, Any]:
+    """Versions and machine facts recorded with every study."""
+    import drjit as dr
+    import mitsuba as mi
+
+
+    drjit_version = dr.__version__  # type: ignore[attr-defined]  # not in drjit's stubs
+    return {"mcrt": __version__, "mitsuba": mi.__version__, "drjit": drjit_version,
+            "variant": mi.variant(), "python": platform.python_version(),
+            "platform": platform.platform(), "cpus": os.cpu_count(),
+            "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+
+
+def run_study(config: StudyConfig, progress: bool = False,
+              state: StudyState | None = None) -> StudyResult:
+    """Run every cell of a validated study; see :mod:`mcrt.analysis.study` for
+    what is measured.
+
+    With ``state``, cells saved there are taken instead of rendered and every
+    cell finished now is added to it. Ctrl-C raises :class:`StudyInterrupted`
+    with the result of the cells finished so far.
+    """
+    if not config.effective_spp:
+        check_config(config)
+    run = _Run(config, state, _Progress(config.renders, progress))
+    try:
+        for spec in config.scenes:
+            run.scene(spec)
+    except KeyboardInterrupt:  # a render's own RenderInterrupted is one too
+        raise StudyInterrupted(run.result(run.current)) from None
+    finally:
+        run.bar.close()
+    return run.result()
+
+
+# --------------------------------------------------------------------------- the steps
+
+
+class _Progress:
+    """A tqdm bar over the study's renders, or nothing."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.bar: Any = None
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, unit="render", desc="study", dynamic_ncols=True)
+
+    def describe(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.set_description(text, refresh=True)
+
+    def note(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.write(text)
+        else:
+            log.info("%s", text)
+
+    def update(self, n: int = 1) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+@dataclass
+class _Reference:
+    """A scene's reference as every render is measured against it."""
+
+    mean: np.ndarray             # (H, W, 3) float64
+    var: np.ndarray              # its per-pixel variance (squared standard error)
+    floor: float                 # mean of ``var``: what it adds to every MSE
+
+
+class _Scene:
+    """Renders one scene as ``mcrt render`` does (planned once, when first needed)."""
+
+    def __init__(self, spec: SceneSpec):
+        self.spec = spec
+        self._planned: PlannedScene | None = None
+
+    def planned(self) -> PlannedScene:
+        from ...render.plan import plan_scene
+
+        if self._planned is None:
+            self._planned = plan_scene(self.spec.path, self.spec.params)
+        return self._planned
+
+    def render(self, sampler: mi.Sampler, seed: int) -> FilmRender:
+        from ...core.render import render_film  # looked up now: tests wrap it
+
+        planned = self.planned()
+        subframes, move = planned.schedule(sampler, None, seed)
+        return render_film(planned.scene, sampler, seed=seed, passes=subframes, on_pass=move)
+
+
+class _Run:
+    """One run of a study: what is measured so far, and the steps that measure it."""
+
+    def __init__(self, config: StudyConfig, state: StudyState | None, bar: _Progress):
+        self.config = config
+        self.state = state
+        self.bar = bar
+        self.start = time.perf_counter()
+        self.before = state.seconds if state is not None else 0.0
+        self.env = environment()
+        if state is not None and state.cells:
+            self.env["resumed"] = True
+        self.references: dict[str, ReferenceInfo] = {}
+        self.reference_images: dict[str, np.ndarray] = {}
+        self.cells: list[dict[str, Any]] = []
+        self.images: dict[tuple[str, str], CellImages] = {}
+        #: the cell being rendered (see StudyResult.interrupted)
+        self.current: dict[str, Any] | None = None
+        self.resumed = 0
+
+    def seconds(self) -> float:
+        """Study time so far, earlier runs included."""
+        return self.before + time.perf_counter() - self.start
+
+    def result(self, interrupted: dict[str, Any] | None = None) -> StudyResult:
+        fits = [fit_sampler(scene, sampler.label, self.cells)
+                for scene in self.references for sampler in self.config.samplers]
+        return StudyResult(config=self.config, references=self.references, cells=self.cells,
+                           fits=fits, reference_images=self.reference_images,
+                           images=self.images, environment=self.env, seconds=self.seconds(),
+                           interrupted=interrupted, resumed_cells=self.resumed)
+
+    def scene(self, spec: SceneSpec) -> None:
+        """Every cell of one scene, against its reference."""
+        ref = self.reference(spec)
+        scene = _Scene(spec)
+        for sampler in self.config.samplers:
+            for spp in self.config.spp:
+                if not self.resume(spec.name, sampler.label, spp):
+                    self.measure(scene, sampler, spp, ref)
+
+    def reference(self, spec: SceneSpec) -> _Reference:
+        """Render (or take from the cache) the reference of a scene and record it."""
+        from ..reference import get_reference  # looked up now: tests replace it
+
+        config = self.config.reference
+        self.bar.describe(f"{spec.name}: reference")
+        self.bar.note(f"[{spec.name}] reference: {config.sampler}, {config.spp} spp")
+
+        def on_pass(index: int, passes: int) -> None:
+            self.bar.describe(f"{spec.name}: reference pass {index + 1}/{passes}")
+
+        ref = get_reference(spec.path, spec.params, spp=config.spp, sampler=config.sampler,
+                            seed=config.seed, spp_per_pass=config.spp_per_pass, on_pass=on_pass)
+        mean = np.asarray(ref.mean, dtype=np.float64)
+        se = np.asarray(ref.standard_error, dtype=np.float64)
+        var = se ** 2
+        floor = reference_noise_floor(se)
+        height, width = mean.shape[:2]
+        self.references[spec.name] = ReferenceInfo(
+            scene=spec.name, spp=int(ref.spp), sampler=config.sampler,
+            seconds=float(ref.seconds), noise_floor=floor,
+            rel_noise_floor=float(np.mean(var / (mean ** 2 + REL_MSE_EPSILON))),
+            width=int(width), height=int(height), cached=bool(getattr(ref, "cached", False)))
+        self.reference_images[spec.name] = mean
+        if self.state is not None:
+            self.state.check_reference(spec.name, reference_fingerprint(mean, se))
+        return _Reference(mean=mean, var=var, floor=floor)
+
+    def resume(self, scene: str, label: str, spp: int) -> bool:
+        """Take the cell from the saved state, if it is there (with its images
+        when the report shows them); False: it must be measured."""
+        if self.state is None:
+            return False
+        saved = self.state.cells.get((scene, label, spp))
+        if saved is None:
+            return False
+        saved_images = None
+        if spp == self.config.image_spp:
+            saved_images = self.state.images(scene, label)
+            if saved_images is None:
+                return False
+            self.images[(scene, label)] = saved_images
+        self.cells.append(saved)
+        self.resumed += 1
+        self.bar.update(len(self.config.seeds) + 1)
+        return True
+
+    def measure(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference) -> None:
+        """Render one cell (a warm-up, then every seed), summarise and record it."""
+        from ...core.sampling import make_sampler, quiet_sampler_warnings
+
+        name, k = scene.spec.name, len(self.config.seeds)
+        scene.planned()
+        self.bar.describe(f"{name}: {sampler.label} {spp} spp")
+        current = self.current = {"scene": name, "sampler": sampler.label, "spp": spp,
+                                  "seeds_done": 0, "seeds_total": k}
+        with quiet_sampler_warnings():
+            warmup = make_sampler(sampler.name, spp, **sampler.params)
+            scene.render(warmup, WARMUP_SEED)  # untimed: compiles/caches kernels
+        self.bar.update()
+        per_seed: list[dict[str, Any]] = []
+        renders: list[np.ndarray] = []
+        for seed in self.config.seeds:
+            values, rgb = self.render_seed(scene, sampler, spp, seed, ref)
+            per_seed.append(values)
+            renders.append(rgb)
+            current["seeds_done"] = len(per_seed)
+            self.bar.update()
+        stats = PixelStats.from_images(renders)
+        cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
+                              ref.floor, k)
+        images = None
+        if spp == self.config.image_spp:
+            images = self.images[(name, sampler.label)] = cell_images(renders, stats, ref.mean)
+        self.cells.append(cell)
+        self.current = None
+        if self.state is not None:
+            self.state.add(cell, images, self.seconds())
+
+    def render_seed(self, scene: _Scene, sampler: SamplerSpec, spp: int, seed: int,
+                    ref: _Reference) -> tuple[dict[str, Any], np.ndarray]:
+        """One timed render and its metrics (NaN/Inf pixels counted, logged and
+        measured as zero error); returns the per-seed values and the image."""
+        from ...core.sampling import make_sampler, quiet_sampler_warnings
+
+        name = scene.spec.name
+        with quiet_sampler_warnings():
+            obj = make_sampler(sampler.name, spp, **sampler.params)
+        rendered = scene.render(obj, seed)
+        rgb = np.asarray(rendered.rgb, dtype=np.float64)
+        if rgb.shape != ref.mean.shape:
+            raise McrtError(f"scene {name!r}: render shape {rgb.shape} "
+                            f"differs from the reference's {ref.mean.shape}")
+        bad = np.logical_not(np.all(np.isfinite(rgb), axis=-1))
+        clean = rgb
+        if bad.any():  # counted and reported; metrics see zero error there
+            log.warning("%s/%s/%d spp seed %d: %d pixels are NaN/Inf",
+                        name, sampler.label, spp, seed, int(bad.sum()))
+            clean = np.where(bad[..., None], ref.mean, rgb)
+        score = aliasing_score(error_map(clean, ref.mean),
+                               null_draws=self.config.aliasing_draws, seed=seed)
+        values = {"seed": seed, "spp": int(rendered.spp), "seconds": rendered.seconds,
+                  "mse": mse(clean, ref.mean), "rel_mse": rel_mse(clean, ref.mean),
+                  "delta_e": delta_e_2000(clean, ref.mean),
+                  "nonfinite": int(bad.sum()), "aliasing": score.as_dict()}
+        return values, rgb

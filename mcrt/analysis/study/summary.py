@@ -1,0 +1,129 @@
+"""What a study makes of its renders: a cell's summary over seeds, its images, the fits.
+
+A cell is a dict of the fields declared in :data:`~.fields.CELL_FIELDS`
+(built by :func:`summarise_cell`), a fit one of :data:`~.fields.FIT_FIELDS`
+(:func:`fit_sampler`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...core.stats import PixelStats
+from ..aliasing import Z_THRESHOLD
+from ..convergence import efficiency, fit_loglog
+from ..metrics import bias, error_map, mse, variance_map
+from .config import SamplerSpec
+from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, record
+
+
+@dataclass
+class CellImages:
+    """Images of one (scene, sampler) at the report's spp (seed = first seed)."""
+
+    render: np.ndarray           # (H, W, 3) linear
+    error: np.ndarray            # (H, W) luminance error vs the reference
+    std: np.ndarray              # (H, W) per-pixel sd of the estimate across seeds
+
+
+def _mean_sd(values: list[float]) -> tuple[float, float]:
+    a = np.asarray(values, dtype=np.float64)
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
+
+
+def _mean(per_seed: list[dict[str, Any]], key: str) -> float:
+    """Mean over seeds of the aliasing measure ``key``."""
+    return float(np.mean([r["aliasing"][key] for r in per_seed]))
+
+
+def _verdict(ratio_z: float, peak_z: float) -> str:
+    if ratio_z > Z_THRESHOLD or peak_z > Z_THRESHOLD:
+        return "aliased"
+    return "blue" if ratio_z < -Z_THRESHOLD else "noise"
+
+
+def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[dict[str, Any]],
+                   stats: PixelStats, ref_mean: np.ndarray, ref_var: np.ndarray,
+                   floor: float, k: int) -> dict[str, Any]:
+    """The cell of (scene, sampler, spp) from its per-seed records and the pixel
+    moments of its ``k`` renders, against a reference (mean, variance, noise floor)."""
+    seconds, seconds_sd = _mean_sd([r["seconds"] for r in per_seed])
+    mse_mean, mse_sd = _mean_sd([r["mse"] for r in per_seed])
+    rel_mean, rel_sd = _mean_sd([r["rel_mse"] for r in per_seed])
+    de_mean, de_sd = _mean_sd([r["delta_e"] for r in per_seed])
+    excess = mse_mean - floor
+    resolved = bool(mse_mean > RESOLVED_FACTOR * floor)
+    # The seed-averaged image: its pixels' variance is (between-seed variance) / K.
+    b = bias(stats.mean, ref_mean, image_variance=stats.variance / k, reference_variance=ref_var)
+    ratio_z, peak_z = _mean(per_seed, "ratio_z"), _mean(per_seed, "peak_z")
+    return record(CELL_FIELDS, {
+        "scene": scene, "sampler": sampler.label, "plugin": sampler.name,
+        "params": dict(sampler.params), "spp_requested": spp,
+        "spp": int(per_seed[0]["spp"]), "seeds": [r["seed"] for r in per_seed],
+        "seconds": seconds, "seconds_sd": seconds_sd,
+        "seconds_min": float(min(r["seconds"] for r in per_seed)),
+        "mse": mse_mean, "mse_sd": mse_sd, "mse_floor": floor, "mse_excess": excess,
+        "mse_of_mean": mse(stats.mean, ref_mean),
+        "resolved": resolved,
+        "rel_mse": rel_mean, "rel_mse_sd": rel_sd,
+        "efficiency": efficiency(excess, seconds) if resolved else float("nan"),
+        "variance": float(variance_map(stats.variance).mean()),
+        "bias": b.value, "bias_low": b.low, "bias_high": b.high,
+        "delta_e": de_mean, "delta_e_sd": de_sd,
+        "aliasing_ratio": _mean(per_seed, "ratio"), "aliasing_ratio_z": ratio_z,
+        "aliasing_peak": _mean(per_seed, "peak"), "aliasing_peak_z": peak_z,
+        "aliasing": _verdict(ratio_z, peak_z),
+        "nonfinite": int(sum(r["nonfinite"] for r in per_seed)),
+        "per_seed": per_seed,
+    })
+
+
+def cell_images(renders: list[np.ndarray], stats: PixelStats,
+                ref_mean: np.ndarray) -> CellImages:
+    """The report's images of a cell: its first seed's render, that render's
+    luminance error (NaN/Inf pixels as the reference's) and the per-pixel sd."""
+    first = np.where(np.isfinite(renders[0]), renders[0], ref_mean)
+    return CellImages(render=renders[0].astype(np.float32),
+                      error=error_map(first, ref_mean).astype(np.float32),
+                      std=np.sqrt(variance_map(stats.variance)).astype(np.float32))
+
+
+def fit_sampler(scene: str, sampler: str, cells: list[dict[str, Any]]) -> dict[str, Any]:
+    """Log-log slopes of the excess MSE vs spp and vs seconds over the resolved
+    cells' per-seed values (NaN unless at least two sample counts are resolved:
+    the timing scatter of one cell's seeds is not a slope)."""
+    mine = [c for c in cells if c["scene"] == scene and c["sampler"] == sampler]
+    used = [c for c in mine if c["resolved"]]
+    x_spp, x_sec, y = [], [], []
+    for c in used:
+        for r in c["per_seed"]:
+            x_spp.append(c["spp"])
+            x_sec.append(r["seconds"])
+            y.append(r["mse"] - c["mse_floor"])
+    out: dict[str, Any] = {"scene": scene, "sampler": sampler, "points": len(y),
+                           "cells_used": len(used), "cells": len(mine)}
+    sample_counts = len({c["spp"] for c in used})
+    for key, x in (("spp", x_spp), ("seconds", x_sec)):
+        out.update(_slope(key, x, y, sample_counts))
+    effs = [c["efficiency"] for c in mine if math.isfinite(c["efficiency"])]
+    out["efficiency_max"] = max(effs) if effs else float("nan")
+    return record(FIT_FIELDS, out)
+
+
+def _slope(key: str, x: list[float], y: list[float], sample_counts: int) -> dict[str, float]:
+    """The fit of log y against log x as ``slope_<key>`` etc.; NaN without a slope
+    (fewer than two resolved sample counts: one cell's seed scatter is no slope)."""
+    try:
+        if sample_counts < 2:
+            raise ValueError("fewer than two resolved sample counts")
+        fit = fit_loglog(x, y)
+    except ValueError:
+        nan = float("nan")
+        return {f"slope_{key}": nan, f"slope_{key}_se": nan, f"intercept_{key}": nan,
+                f"r2_{key}": nan}
+    return {f"slope_{key}": fit.slope, f"slope_{key}_se": fit.slope_se,
+            f"intercept_{key}": fit.intercept, f"r2_{key}": fit.r2}
