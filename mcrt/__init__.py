@@ -6,27 +6,53 @@ Importing the package activates the ``llvm_ad_rgb`` variant when none is active
 ``distribution`` and ``adaptive``), so ``mi.load_dict({'type': 'jittered', ...})``
 works right away.
 Call :func:`register` again after switching variants.
+
+The import is kept cheap (about what ``import mitsuba`` and ``set_variant``
+cost): numpy, the adaptive renderer and the analysis modules are imported when
+first used, not here.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from ._platform import ensure_variant, initialise
 from .errors import McrtError
 
-__version__ = "0.1.0"
+if TYPE_CHECKING:
+    import mitsuba as mi
+
+from ._version import __version__  # noqa: E402,F401  (re-exported)
 
 initialise()
 
 from . import samplers  # noqa: E402  (needs an active variant)
-from .render import adaptive_integrator, distribution  # noqa: E402
+from .render import distribution  # noqa: E402
+
+
+def _adaptive_integrator(props: mi.Properties) -> mi.Integrator:
+    """Mitsuba's constructor for ``adaptive`` until the integrator is first used.
+
+    The integrator module pulls in numpy and the adaptive renderer, so it is
+    imported here, on the first ``{'type': 'adaptive'}``; its own ``register()``
+    then replaces this constructor with the class (re-created for the active
+    variant if that changed since it was imported).
+    """
+    from .render import adaptive_integrator
+
+    adaptive_integrator.register()
+    integrator: mi.Integrator = adaptive_integrator.AdaptiveIntegrator(props)
+    return integrator
 
 
 def register() -> None:
     """Register mcrt's plugins with the active Mitsuba variant."""
+    import mitsuba as mi
+
     ensure_variant()
     samplers.register()
     distribution.register()
-    adaptive_integrator.register()
+    mi.register_integrator("adaptive", _adaptive_integrator)
 
 
 register()

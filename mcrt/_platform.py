@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
+from types import TracebackType
 
 from .errors import SetupError
 
@@ -69,13 +71,20 @@ def ensure_variant() -> str:
     return variant
 
 
-def _one_line_setup_errors(previous_hook):
-    def hook(exc_type, exc, tb):
+class _OneLineSetupErrors:
+    """``sys.excepthook`` printing a :class:`SetupError` as one line; other
+    exceptions go to the previous hook."""
+
+    def __init__(self, previous: Callable[[type[BaseException], BaseException,
+                                           TracebackType | None], object]) -> None:
+        self.previous = previous
+
+    def __call__(self, exc_type: type[BaseException], exc: BaseException,
+                 tb: TracebackType | None) -> None:
         if issubclass(exc_type, SetupError):
             sys.stderr.write(f"mcrt: error: {exc}\n")
         else:
-            previous_hook(exc_type, exc, tb)
-    return hook
+            self.previous(exc_type, exc, tb)
 
 
 def initialise() -> str:
@@ -88,7 +97,6 @@ def initialise() -> str:
     try:
         return ensure_variant()
     except SetupError:
-        if not getattr(sys.excepthook, "_mcrt", False):
-            sys.excepthook = _one_line_setup_errors(sys.excepthook)
-            sys.excepthook._mcrt = True
+        if not isinstance(sys.excepthook, _OneLineSetupErrors):
+            sys.excepthook = _OneLineSetupErrors(sys.excepthook)
         raise

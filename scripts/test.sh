@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Quick-start step 2: set everything up (see scripts/setup.sh), then run the test suite,
+# Quick-start step 2: set everything up (see scripts/setup.sh), lint (ruff), type-check (mypy,
+# configured in pyproject.toml), then run the test suite,
 #   python -m pytest -q [extra args...]      e.g. bash scripts/test.sh -m "not slow" -x
+# A lint or type error fails the run before any test starts.
 # CI runs exactly this script (.ci/run).
 set -euo pipefail
 
@@ -11,5 +13,12 @@ mcrt_setup
 cd "$MCRT_ROOT"
 # Tests may plot: never try to open a window (CI has no display).
 export MPLBACKEND=Agg
+
+log "running: ruff check mcrt tests benchmarks scripts"
+"$MCRT_VENV/bin/ruff" check mcrt tests benchmarks scripts \
+    || { err "ruff found problems (see above; many are fixed by: .venv/bin/ruff check --fix)"; exit 1; }
+log "running: mypy (files and settings in pyproject.toml)"
+"$MCRT_VENV/bin/mypy" || { err "mypy found type errors (see above)"; exit 1; }
+
 log "running: python -m pytest -q $*"
 exec "$MCRT_VENV/bin/python" -m pytest -q "$@"

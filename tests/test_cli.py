@@ -12,6 +12,7 @@ import pytest
 from conftest import run_cli
 
 import mcrt.cli.render_cmd as render_cmd
+from mcrt.cli import COMMANDS, build_parser, command_of
 from mcrt.io import read_exr
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
@@ -116,3 +117,51 @@ def test_missing_libllvm_is_a_clear_message():
     lines = [line for line in proc.stderr.splitlines() if line.startswith("mcrt:")]
     assert len(lines) == 1 and "libllvm19" in lines[0] and "DRJIT_LIBLLVM_PATH" in lines[0]
     assert "Traceback" not in proc.stderr
+
+
+# ------------------------------------------------------------- start-up: one subcommand at a time
+@pytest.mark.parametrize("argv, command", [
+    (["render", "x.xml"], "render"), (["-q", "compare", "c.toml"], "compare"),
+    (["--quiet", "-q", "plan"], "plan"), ([], None), (["--help"], None), (["-h", "render"], None),
+    (["rendr"], None), (["--qui", "render"], None), (["--", "render"], None),
+])
+def test_command_of(argv, command):
+    assert command_of(argv) == command
+
+
+@pytest.mark.parametrize("name", list(COMMANDS))
+def test_one_command_parser_parses_like_the_full_parser(capsys, name):
+    """`mcrt NAME ...` builds only NAME's parser: same help, same errors."""
+    for argv, expected in (([name, "--help"], f"usage: mcrt {name}"),
+                           ([name, "--no-such-option"], "error:")):
+        outputs = []
+        for parser in (build_parser(), build_parser([name])):
+            with pytest.raises(SystemExit) as exit_:
+                parser.parse_args(argv)
+            captured = capsys.readouterr()
+            outputs.append((exit_.value.code, captured.out, captured.err))
+        assert outputs[0] == outputs[1]
+        assert expected in outputs[0][1] + outputs[0][2]
+
+
+def _modules_after(code: str) -> set[str]:
+    """Top-level packages imported by a fresh interpreter running ``code``."""
+    script = code + "\nimport sys\nprint(' '.join(sorted({m.split('.')[0] for m in sys.modules})))\n"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120, check=True)
+    return set(proc.stdout.split())
+
+
+def test_import_mcrt_imports_nothing_heavy():
+    """`import mcrt` costs about what `import mitsuba` + set_variant cost."""
+    heavy = {"numpy", "matplotlib", "scipy", "colour", "tqdm", "PIL", "OpenEXR"}
+    assert _modules_after("import mcrt") & heavy == set()
+
+
+def test_render_command_does_not_import_the_analysis_stack():
+    code = ("from mcrt.cli import main\n"
+            "try:\n"
+            "    main(['render', '--help'])\n"
+            "except SystemExit:\n"
+            "    pass\n")
+    assert _modules_after(code) & {"matplotlib", "scipy", "colour"} == set()

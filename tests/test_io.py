@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import OpenEXR
@@ -21,6 +23,7 @@ from mcrt.io import (
     write_exr,
     write_png,
 )
+from mcrt.io.png import SRGB_LINEAR_LIMIT, srgb_transfer
 
 H, W = 7, 11
 
@@ -335,6 +338,37 @@ def test_encode_srgb_matches_the_standard_curve():
     assert np.abs(out.astype(int) - ref).max() <= 1     # rounding ties only
     assert np.mean(out == ref) > 0.999
     assert np.all(np.diff(out[2001:].astype(int)) >= 0)  # monotone
+
+
+def test_srgb_transfer_is_bit_identical_to_colour_science():
+    """The numpy transfer function replaced colour.cctf_encoding (slow to import):
+    same float64 values, hence the same PNG bytes as before."""
+    colour = pytest.importorskip("colour")
+    rng = np.random.default_rng(7)
+    x = np.concatenate([
+        np.linspace(0.0, 1.0, 100_001),
+        rng.random(100_000),
+        rng.random(10_000) * 0.01,                        # around the linear segment
+        np.nextafter(SRGB_LINEAR_LIMIT, [0.0, 1.0]), [SRGB_LINEAR_LIMIT, 0.0, 1.0],
+        (np.arange(256) / 255.0) ** 2.4,                  # near the 8-bit code boundaries
+    ])
+    ours = srgb_transfer(x)
+    theirs = np.asarray(colour.cctf_encoding(x, function="sRGB"), dtype=np.float64)
+    assert ours.dtype == np.float64
+    np.testing.assert_array_equal(ours, theirs)
+    # ... and so the 8-bit codes of encode_srgb agree as well.
+    rgb = np.repeat(np.clip(x, 0, 1)[None, :, None], 3, axis=2)
+    expected = np.floor(np.clip(theirs, 0, 1) * 255 + 0.5).astype(np.uint8)
+    np.testing.assert_array_equal(encode_srgb(rgb)[0, :, 0], expected)
+
+
+def test_png_path_does_not_import_colour_science():
+    code = ("import sys\n"
+            "import numpy as np\n"
+            "from mcrt.io import encode_srgb\n"
+            "encode_srgb(np.full((2, 2, 3), 0.5))\n"
+            "assert 'colour' not in sys.modules, 'colour-science imported'\n")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
 
 
 def test_encode_srgb_exposure_and_channels():

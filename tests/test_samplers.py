@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from conftest import OUR_SAMPLERS, small_cornell
 
+from mcrt.core.render import render_film
 from mcrt.errors import SamplerError
-from mcrt.render.passes import render_film
 from mcrt.samplers import _layout
 from mcrt.samplers.points import point_sets
 
@@ -88,6 +88,22 @@ def test_register_after_variant_switch():
         "assert isinstance(s, mi.Sampler), type(s).__mro__\n"
         "s.seed(0, 4)\n"
         "assert type(s.next_1d()) is mi.Float\n")
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+
+
+def test_adaptive_integrator_is_imported_on_first_use():
+    """`import mcrt` registers `adaptive` without importing it (numpy, the renderer);
+    the first load imports it, in whichever variant is active then."""
+    code = (
+        "import sys, mitsuba as mi, mcrt\n"
+        "assert 'mcrt.render.adaptive_integrator' not in sys.modules\n"
+        "a = mi.load_dict({'type': 'adaptive', 'integrator': {'type': 'path'}})\n"
+        "assert type(a).__name__ == 'AdaptiveIntegrator', type(a)\n"
+        "assert type(mi.load_dict({'type': 'adaptive'})) is type(a)\n"
+        "mi.set_variant('llvm_ad_mono')\n"
+        "mcrt.register()\n"
+        "b = mi.load_dict({'type': 'adaptive'})\n"
+        "assert isinstance(b, mi.SamplingIntegrator) and type(b) is not type(a)\n")
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
 
 

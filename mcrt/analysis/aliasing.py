@@ -309,15 +309,15 @@ def aliasing_score(error: np.ndarray, cutoff: float = DEFAULT_CUTOFF, cells: int
     we = layout.window * e
     ratio, peak = _statistics(_half_power(we), layout)
     rng = np.random.default_rng(seed)
-    null_ratio, null_peak = [], []
+    ratios, peaks = [], []
     for start in range(0, null_draws, 8):  # batches bound memory
         k = min(8, null_draws - start)
         signs = rng.integers(0, 2, size=(k, *e.shape)) * 2.0 - 1.0
         r, p = _statistics(_half_power(signs * we), layout)
-        null_ratio.append(r)
-        null_peak.append(p)
-    null_ratio = np.concatenate(null_ratio)
-    null_peak = np.concatenate(null_peak)
+        ratios.append(r)
+        peaks.append(p)
+    null_ratio = np.concatenate(ratios)
+    null_peak = np.concatenate(peaks)
     return AliasingScore(ratio=float(ratio), peak=float(peak),
                          ratio_null_mean=float(null_ratio.mean()),
                          ratio_null_sd=float(null_ratio.std(ddof=1)),

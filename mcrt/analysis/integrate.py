@@ -57,8 +57,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.sampling import mitsuba_message, quiet_sampler_warnings
 from ..errors import McrtError
-from ..render.scene import mitsuba_message, quiet_sampler_warnings
 from ..samplers.points import point_sets
 
 #: Default trials (pixels) per sample count.
@@ -201,12 +201,12 @@ def fit_slope(n: Sequence[float], mse: Sequence[float], se_log: Sequence[float] 
     ``chi2_dof`` checks the latter. Unweighted fits use the residual variance
     instead. Points with ``mse <= 0`` are skipped.
     """
-    n = np.asarray(n, dtype=np.float64)
-    mse = np.asarray(mse, dtype=np.float64)
-    keep = (mse > 0) & (n > 0)
+    counts = np.asarray(n, dtype=np.float64)
+    errors = np.asarray(mse, dtype=np.float64)
+    keep = (errors > 0) & (counts > 0)
     if np.count_nonzero(keep) < 2:
         return SlopeFit(math.nan, math.nan, math.nan, int(np.count_nonzero(keep)))
-    x, y = np.log(n[keep]), np.log(mse[keep])
+    x, y = np.log(counts[keep]), np.log(errors[keep])
     if se_log is None:
         w = np.ones_like(x)
     else:

@@ -3,16 +3,36 @@
 User errors (bad arguments, missing or malformed scenes, unknown samplers,
 unwritable outputs) print one line, ``mcrt: error: ...``, and exit with status 2
 before any rendering starts; they never show a traceback.
+
+Each subcommand lives in its own module (``mcrt.cli.<name>_cmd``, with
+``add_parser(commands)`` and ``run(args)``). ``mcrt NAME ...`` imports only that
+module, so a render does not pay for the study and plotting modules; ``mcrt
+--help`` and unknown commands build the parser of every subcommand.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
+from collections.abc import Iterable, Sequence
 
 from ..errors import McrtError
-from . import compare_cmd, demo_cmd, integrate_cmd, pattern_cmd, plan_cmd, reference_cmd, render_cmd
+
+#: Subcommand -> its module in this package, in the order ``mcrt --help`` lists them.
+COMMANDS: dict[str, str] = {
+    "render": "render_cmd",
+    "demo": "demo_cmd",
+    "pattern": "pattern_cmd",
+    "integrate": "integrate_cmd",
+    "reference": "reference_cmd",
+    "compare": "compare_cmd",
+    "plan": "plan_cmd",
+}
+
+#: Options of ``mcrt`` itself (before the subcommand) that take no value.
+_TOP_LEVEL_FLAGS = ("-q", "--quiet")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -22,15 +42,32 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="mcrt", description=__doc__.splitlines()[0])
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars or notes")
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    commands.required = True
-    for module in (render_cmd, demo_cmd, pattern_cmd, integrate_cmd, reference_cmd, compare_cmd,
-                   plan_cmd):
-        module.add_parser(commands)
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The ``mcrt`` parser with the given subcommands (default: all of :data:`COMMANDS`).
+
+    Imports the module of each subcommand it adds.
+    """
+    parser = _Parser(prog="mcrt", description=(__doc__ or "mcrt").splitlines()[0])
+    parser.add_argument(*_TOP_LEVEL_FLAGS, action="store_true", help="no progress bars or notes")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    subparsers.required = True
+    for name in COMMANDS if commands is None else commands:
+        module = importlib.import_module(f"{__name__}.{COMMANDS[name]}")
+        module.add_parser(subparsers)
     return parser
+
+
+def command_of(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` runs, if that is clear without parsing: the first
+    argument other than ``-q``/``--quiet``, when it names a subcommand.
+
+    None otherwise (``--help``, an abbreviated option, a typo, nothing): then the
+    full parser decides, and reports.
+    """
+    for arg in argv:
+        if arg not in _TOP_LEVEL_FLAGS:
+            return arg if arg in COMMANDS else None
+    return None
 
 
 def _configure_logging(quiet: bool) -> None:
@@ -44,7 +81,11 @@ def _configure_logging(quiet: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``mcrt`` console script."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = command_of(argv)
+    # A parser with just the one subcommand parses its arguments exactly as the
+    # full parser would (same prog, usage and messages).
+    args = build_parser(None if command is None else [command]).parse_args(argv)
     _configure_logging(args.quiet)
     try:
         return int(args.run(args) or 0)

@@ -6,8 +6,8 @@ import argparse
 import os
 from pathlib import Path
 
-from ..errors import McrtError
 from ..core.atomic import ensure_writable_dir
+from ..errors import McrtError
 
 
 def positive_int(text: str) -> int:
@@ -34,10 +34,11 @@ def non_negative_int(text: str) -> int:
 
 def output_stem(out: str | None, default: str) -> Path:
     """``-o OUT`` without a trailing image suffix (``OUT.exr`` and ``OUT.png`` get written)."""
-    path = Path(out) if out else Path(default)
+    path = Path(out or default)
     if path.name in ("", ".", ".."):  # "/", ".", "out/..": no file name to add .exr to
-        raise McrtError(f"-o {out}: names a directory; give an output path such as "
-                        f"{Path(out) / 'image'}")
+        given = f"-o {out}" if out else f"output path {default}"
+        raise McrtError(f"{given}: names a directory; give an output path such as "
+                        f"{path / 'image'}")
     if path.suffix.lower() in (".exr", ".png"):
         path = path.with_suffix("")
     return path

@@ -8,12 +8,12 @@ import logging
 from pathlib import Path
 
 from ..analysis.metrics import rel_mse
+from ..core.atomic import atomic_path
+from ..core.render import render_film
+from ..core.sampling import check_sampler_name, make_sampler
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
-from ..core.atomic import atomic_path
-from ..render.passes import render_film
 from ..render.plan import plan_scene
-from ..render.scene import check_sampler_name, make_sampler
 from ._common import ensure_writable_dir, positive_int
 
 log = logging.getLogger("mcrt.demo")

@@ -8,9 +8,9 @@ import json
 from pathlib import Path
 
 from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_convergence
-from ..errors import McrtError
 from ..core.atomic import atomic_path
-from ..render.scene import check_sampler_name
+from ..core.sampling import check_sampler_name
+from ..errors import McrtError
 from ._common import ensure_writable_dir, non_negative_int, positive_int
 
 DEFAULT_SAMPLERS = ("independent", "jittered", "poisson_disk")
@@ -136,6 +136,8 @@ def _print_table(integrand, results) -> None:
 
 
 def _write_outputs(out: Path, args, integrand, results) -> None:
+    import numpy as np
+
     from ..analysis import plots
 
     stem = out / f"integrate_{integrand.name}"
@@ -166,8 +168,9 @@ def _write_outputs(out: Path, args, integrand, results) -> None:
         Path(tmp).write_text(json.dumps(summary, indent=2) + "\n")
 
     fig = plots.new_figure(6.0, 4.5)
-    series = [(f"{name} ({conv.fit().slope:+.2f})", [p.n for p in conv.points],
-               [p.summary.mse for p in conv.points], [p.summary.se_log for p in conv.points])
+    series = [(f"{name} ({conv.fit().slope:+.2f})", np.array([p.n for p in conv.points]),
+               np.array([p.summary.mse for p in conv.points]),
+               np.array([p.summary.se_log for p in conv.points]))
               for name, conv in results.items() if conv.points]
     plots.plot_convergence(fig.add_subplot(), series,
                            title=f"MSE of the {integrand.name} estimate (slope in legend)")

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis import patterns
-from ..errors import McrtError
 from ..core.atomic import atomic_path
-from ..render.scene import check_sampler_name, make_sampler, quiet_sampler_warnings
+from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
+from ..errors import McrtError
 from ..samplers import ALL_SAMPLERS, BUILTIN_SAMPLERS
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets
 from ..samplers.poisson_tables import MAX_POINTS

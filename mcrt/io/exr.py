@@ -148,7 +148,7 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
     if not layers:
         raise ValueError("write_exr needs at least one layer")
     channels: dict[str, np.ndarray] = {}
-    shape = None
+    shape: tuple[int, ...] | None = None
     for name, array in layers.items():
         for channel, plane in _layer_channels(name, array):
             if shape is None:
@@ -157,7 +157,7 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
                 raise ValueError(f"EXR layers must share one (H, W): layer {name!r} is "
                                  f"{plane.shape}, expected {shape}")
             channels[channel] = plane
-    if 0 in shape:
+    if shape is None or 0 in shape:
         raise ValueError(f"cannot write an empty image of shape {shape}")
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}

@@ -44,9 +44,11 @@ def _redefine_classes() -> None:
     global _classes_variant, McrtSampler, JitteredSampler, UniformGridSampler, PoissonDiskSampler
     for module in (base, jittered, poisson_disk):
         importlib.reload(module)
-    McrtSampler = base.McrtSampler
-    JitteredSampler, UniformGridSampler = jittered.JitteredSampler, jittered.UniformGridSampler
-    PoissonDiskSampler = poisson_disk.PoissonDiskSampler
+    # Rebinding a class name is what this function is for; mypy forbids it in general.
+    McrtSampler = base.McrtSampler  # type: ignore[misc]
+    JitteredSampler = jittered.JitteredSampler  # type: ignore[misc]
+    UniformGridSampler = jittered.UniformGridSampler  # type: ignore[misc]
+    PoissonDiskSampler = poisson_disk.PoissonDiskSampler  # type: ignore[misc]
     PLUGINS.clear()
     PLUGINS.update({cls.plugin_name: cls
                     for cls in (UniformGridSampler, JitteredSampler, PoissonDiskSampler)})

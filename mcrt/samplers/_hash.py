@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import mitsuba as mi
 
+from ._types import Mask
+
 #: 2^32 / golden ratio, used to spread small consecutive keys over 32 bits.
 GOLDEN_U32 = 0x9E3779B9
 
@@ -82,7 +84,7 @@ def hash_keys_int(*keys: int) -> int:
     return h
 
 
-def permute(index: mi.UInt32, n: int, key: mi.UInt32, active: mi.Bool | bool = True) -> mi.UInt32:
+def permute(index: mi.UInt32, n: int, key: mi.UInt32, active: Mask = True) -> mi.UInt32:
     """Element ``index`` of a pseudo-random permutation of ``[0, n)`` chosen by ``key``.
 
     For a power of two ``n = 2^k`` this is mcrt's own keyed bijection on ``k``-bit
@@ -101,7 +103,8 @@ def permute(index: mi.UInt32, n: int, key: mi.UInt32, active: mi.Bool | bool = T
     Other ``n`` use ``mi.permute_kensler`` (it cycle-walks to stay below ``n``).
     """
     if n & (n - 1) or n == 1:
-        return mi.permute_kensler(index, n, key, active)
+        # The stub spells the variant's types as drjit.auto.ad.* (see ._types).
+        return mi.permute_kensler(index, n, key, active)  # type: ignore[arg-type,return-value]
     k = n.bit_length() - 1
     w = n - 1
     half, third = max(1, (k + 1) // 2), max(1, k // 3)

@@ -81,13 +81,15 @@ def _spw_word_index(variant: str) -> int | None:
         for count, spw, wavefront in ((720720, 5040, 987_654_321), (9699690, 2310, 123_456_789)):
             mi.Sampler.set_sample_count(probe, count)
             mi.Sampler.set_samples_per_wavefront(probe, spw)
-            mi.Sampler.seed(probe, 0, wavefront)
+            mi.Sampler.seed(probe, 0, wavefront)  # type: ignore[arg-type]  # stub: UInt only
             words = list(_words(probe))
             hits = [i for i in range(1, _SCAN_WORDS - 1)
                     if words[i - 1] == count and words[i] == spw and words[i + 1] == wavefront]
             if len(hits) != 1 or (found is not None and hits[0] != found):
                 return None
             found = hits[0]
+        if found is None:  # pragma: no cover - the loop above always runs
+            return None
         # Writing the field must be seen by the C++ side and vice versa.
         _words(probe)[found] = 7
         if list(_words(probe))[found] != 7 or probe.sample_count() != 9699690 \

@@ -22,6 +22,7 @@ from ._strata import (
     jittered_offset,
     place_in_stratum,
 )
+from ._types import Mask
 
 
 def split_sample(sample: mi.UInt32, n: int) -> tuple[mi.UInt32, mi.UInt32]:
@@ -45,7 +46,7 @@ def epoch_key(dim_key: mi.UInt32, epoch: mi.UInt32) -> mi.UInt32:
 
 
 def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
-                  active: mi.Bool = True) -> mi.Float:
+                  active: Mask = True) -> mi.Float:
     """One point per stratum of ``n`` equal 1D strata per epoch."""
     epoch, rank = split_sample(sample, n)
     key = epoch_key(dim_key, epoch)
@@ -56,7 +57,7 @@ def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
 
 
 def stratified_2d(dim_key: mi.UInt32, sample: mi.UInt32, k: int, jitter: float,
-                  active: mi.Bool = True) -> mi.Point2f:
+                  active: Mask = True) -> mi.Point2f:
     """One point per cell of a ``k x k`` grid per epoch (``n = k^2`` points)."""
     n = k * k
     epoch, rank = split_sample(sample, n)

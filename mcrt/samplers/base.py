@@ -18,7 +18,7 @@ after a variant switch (Mitsuba does the same for its own Python plugins).
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar, TypeGuard, cast
 
 import drjit as dr
 import mitsuba as mi
@@ -27,6 +27,10 @@ from ..errors import SamplerError
 from . import _layout
 from ._hash import hash_extend, hash_keys, hash_keys_int
 from ._stratified import split_sample
+from ._types import Mask, SeedValue
+
+if TYPE_CHECKING:
+    import drjit.auto.ad
 
 #: ``seed()``'s default wavefront size: "keep the previous one" (Mitsuba's -1).
 _KEEP_WAVEFRONT = 0xFFFFFFFF
@@ -111,7 +115,7 @@ class McrtSampler(mi.Sampler):
             return
         self._sample_count_changed(count)
 
-    def seed(self, seed: int | mi.UInt32, wavefront_size: int = _KEEP_WAVEFRONT) -> None:
+    def seed(self, seed: SeedValue, wavefront_size: int = _KEEP_WAVEFRONT) -> None:
         if not self._run_base("seed", seed, wavefront_size):
             return
         wavefront = self.wavefront_size()  # the C++ base applied Mitsuba's rules
@@ -129,15 +133,16 @@ class McrtSampler(mi.Sampler):
     def schedule_state(self) -> None:
         dr.schedule(self._key, self._dim, self._pass)
 
-    def next_1d(self, active: mi.Bool = True) -> mi.Float:
+    def next_1d(self, active: Mask = True) -> drjit.auto.ad.Float:
         key, sample = self._next_dimension()
-        return self._sample_1d(key, sample, active)
+        # mi.Float, which Mitsuba's stub calls drjit.auto.ad.Float here (see ._types).
+        return cast("drjit.auto.ad.Float", self._sample_1d(key, sample, active))
 
-    def next_2d(self, active: mi.Bool = True) -> mi.Point2f:
+    def next_2d(self, active: Mask = True) -> mi.Point2f:
         key, sample = self._next_dimension()
         return self._sample_2d(key, sample, active)
 
-    def fork(self) -> mi.Sampler:
+    def fork(self) -> McrtSampler:
         """A fresh, unseeded sampler with the same parameters."""
         props = mi.Properties()
         props["sample_count"] = self.sample_count()
@@ -146,7 +151,7 @@ class McrtSampler(mi.Sampler):
             props[name] = value
         return type(self)(props)
 
-    def clone(self) -> mi.Sampler:
+    def clone(self) -> McrtSampler:
         """An identical copy: it draws the same values as this sampler from now on."""
         other = self.fork()
         if self._layout is not None:
@@ -197,7 +202,7 @@ class McrtSampler(mi.Sampler):
         self._pass = dr.opaque(mi.UInt32, pass_count)
         self._dim = dr.opaque(mi.UInt32, 0)
 
-    def _seed_key(self, seed: int | mi.UInt32) -> mi.UInt32:
+    def _seed_key(self, seed: SeedValue) -> mi.UInt32:
         """Opaque per-render key; never modifies the caller's ``seed`` variable."""
         if isinstance(seed, int):
             return dr.opaque(mi.UInt32, hash_keys_int(self._base_seed, seed))
@@ -232,14 +237,14 @@ class McrtSampler(mi.Sampler):
         self._dim = dim + 1
         return hash_extend(pixel_key, dim), first_sample + self._pass * self._lane_stride
 
-    def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: mi.Bool) -> mi.Float:
+    def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
         raise NotImplementedError
 
-    def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: mi.Bool) -> mi.Point2f:
+    def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Point2f:
         raise NotImplementedError
 
 
-def is_mcrt_sampler(sampler: mi.Sampler) -> bool:
+def is_mcrt_sampler(sampler: mi.Sampler) -> TypeGuard[McrtSampler]:
     """Whether ``sampler`` is one of mcrt's (counter-based, ``seed_lanes``) samplers.
 
     Checked by module rather than by class: after a variant switch the plugin

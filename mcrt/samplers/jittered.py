@@ -10,6 +10,7 @@ import mitsuba as mi
 from ..errors import SamplerError
 from ._strata import MAX_STRATA
 from ._stratified import stratified_1d, stratified_2d
+from ._types import Mask
 from .base import McrtSampler
 
 log = logging.getLogger(__name__)
@@ -79,10 +80,10 @@ class JitteredSampler(McrtSampler):
     def _sample_count_changed(self, spp: int) -> None:
         self.grid_resolution = math.isqrt(spp)
 
-    def _sample_1d(self, key, sample, active):
+    def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
         return stratified_1d(key, sample, self.sample_count(), self.jitter, active)
 
-    def _sample_2d(self, key, sample, active):
+    def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Point2f:
         return stratified_2d(key, sample, self.grid_resolution, self.jitter, active)
 
 

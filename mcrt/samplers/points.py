@@ -46,29 +46,30 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
     pixel_ids = np.asarray(list(pixels), dtype=np.int64)
     if pixel_ids.size == 0 or pixel_ids.min() < 0 or pixel_ids.max() >= 2**32:
         raise SamplerError("pixels must be a non-empty list of indices in [0, 2^32)")
+    instance: mi.Sampler
     if isinstance(sampler, str):
-        sampler = mi.load_dict({"type": sampler, "sample_count": int(spp), **params})
+        instance = mi.load_dict({"type": sampler, "sample_count": int(spp), **params})
     else:
-        sampler = sampler.clone()
-        sampler.set_sample_count(int(spp))
-    spp = sampler.sample_count()
+        instance = sampler.clone()
+        instance.set_sample_count(int(spp))
+    spp = instance.sample_count()
 
-    if is_mcrt_sampler(sampler):
+    if is_mcrt_sampler(instance):
         pixel = mi.UInt32(np.repeat(pixel_ids, spp).astype(np.uint32))
         sample = mi.UInt32(np.tile(np.arange(spp, dtype=np.uint32), pixel_ids.size))
-        sampler.seed_lanes(seed, pixel, sample)
-        sampler.skip_dimensions(dimension)
+        instance.seed_lanes(seed, pixel, sample)
+        instance.skip_dimensions(dimension)
         rows = np.arange(pixel_ids.size)
     else:
         count = int(pixel_ids.max()) + 1
         if count > MAX_BUILTIN_PIXEL:
             raise SamplerError(f"built-in samplers: pixel indices must be < {MAX_BUILTIN_PIXEL}")
-        sampler.set_samples_per_wavefront(spp)
-        sampler.seed(seed, count * spp)
+        instance.set_samples_per_wavefront(spp)
+        instance.seed(seed, count * spp)  # type: ignore[arg-type]  # stub: UInt only
         for _ in range(dimension):
-            sampler.next_1d()
+            instance.next_1d()
         rows = pixel_ids
-    values = sampler.next_2d() if ndim == 2 else sampler.next_1d()
+    values = instance.next_2d() if ndim == 2 else instance.next_1d()
     array = np.array(values, dtype=np.float32)
     array = array.T if ndim == 2 else array[:, None]  # (lanes, ndim)
     dr.sync_thread()

@@ -8,10 +8,14 @@ import mitsuba as mi
 from ..errors import SamplerError
 from ._hash import hash_extend, permute
 from ._stratified import epoch_key, split_sample, stratified_1d
+from ._types import Mask
 from .base import McrtSampler
-from .poisson_tables import MAX_POINTS, load_tables
 
-_TABLES: dict[tuple[str, int], tuple[mi.Float, mi.Float, int]] = {}
+# .poisson_tables (numpy) is imported on first use: `import mcrt` registers this
+# plugin, and most programs never construct it.
+
+#: Device copies of the tables by (variant, point count).
+_TABLES: dict[tuple[str | None, int], tuple[mi.Float, mi.Float, int]] = {}
 
 
 def _device_tables(n: int) -> tuple[mi.Float, mi.Float, int]:
@@ -22,6 +26,8 @@ def _device_tables(n: int) -> tuple[mi.Float, mi.Float, int]:
     """
     key = (mi.variant(), n)
     if key not in _TABLES:
+        from .poisson_tables import load_tables
+
         tables = load_tables(n)  # (T, n, 2) float32, generated and cached on first use
         _TABLES[key] = (mi.Float(tables[:, :, 0].ravel()), mi.Float(tables[:, :, 1].ravel()),
                         tables.shape[0])
@@ -81,6 +87,8 @@ class PoissonDiskSampler(McrtSampler):
     plugin_name = "poisson_disk"
 
     def _effective_count(self, spp: int) -> int:
+        from .poisson_tables import MAX_POINTS
+
         if spp > MAX_POINTS:
             raise SamplerError(f"{self.plugin_name}: at most {MAX_POINTS} samples per pixel "
                                f"per pass, got {spp}; render in passes instead")
@@ -89,10 +97,10 @@ class PoissonDiskSampler(McrtSampler):
     def _sample_count_changed(self, spp: int) -> None:
         _device_tables(spp)  # generate / load now, not in the middle of a render
 
-    def _sample_1d(self, key, sample, active):
+    def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
         return stratified_1d(key, sample, self.sample_count(), 1.0, active)
 
-    def _sample_2d(self, key, sample, active):
+    def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Point2f:
         n = self.sample_count()
         table_x, table_y, n_tables = _device_tables(n)
         epoch, rank = split_sample(sample, n)
