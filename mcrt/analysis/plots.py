@@ -2,7 +2,8 @@
 
 Matplotlib is used through its object interface with the Agg canvas (no
 ``pyplot``, no global state, no display needed), and every figure is written
-atomically with :func:`mcrt.io.atomic.atomic_path`.
+atomically with :func:`mcrt.core.atomic.atomic_path`. It is imported when the
+first figure is made, so commands that draw nothing never load it.
 """
 
 from __future__ import annotations
@@ -12,17 +13,15 @@ import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-import matplotlib
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle
 
 from ..core.atomic import atomic_path
-from .patterns import RadialSpectrum
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from .patterns import RadialSpectrum
     from .study import StudyResult
 
 #: Display range of the power spectrum images (white noise = 1 is mid-grey).
@@ -31,6 +30,9 @@ SPECTRUM_VMAX = 2.0
 
 def new_figure(width: float, height: float) -> Figure:
     """A figure attached to an Agg canvas."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)
     return fig
@@ -52,6 +54,8 @@ def plot_point_set(ax: Axes, points: np.ndarray, grid: int | None = None,
             ax.axhline(t, color="0.8", lw=0.5, zorder=0)
             ax.axvline(t, color="0.8", lw=0.5, zorder=0)
     if radius:
+        from matplotlib.patches import Circle
+
         for x, y in points:
             ax.add_patch(Circle((x, y), radius, fill=False, lw=0.4, color="tab:blue", alpha=0.6))
     size = max(1.0, min(12.0, 3000.0 / max(len(points), 1)))
@@ -73,7 +77,9 @@ def plot_spectrum(ax: Axes, spectrum: np.ndarray, n_points: int, title: str = ""
     kmax = spectrum.shape[0] // 2
     spectrum[kmax, kmax] = np.nan
     edge = (kmax + 0.5) / math.sqrt(n_points)
-    cmap = matplotlib.colormaps["gray"].with_extremes(bad="black")
+    from matplotlib import colormaps
+
+    cmap = colormaps["gray"].with_extremes(bad="black")
     image = ax.imshow(spectrum, origin="lower", cmap=cmap, vmin=0.0, vmax=SPECTRUM_VMAX,
                       extent=(-edge, edge, -edge, edge), interpolation="nearest")
     ax.set_xlabel("$f_x$ (1 / mean spacing)", fontsize=8)

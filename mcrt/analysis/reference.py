@@ -380,7 +380,7 @@ def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
     meta, arrays = found.meta, found.arrays
     if meta.get("complete") is not complete:
         return None  # an intact state in the other role (partial vs finished)
-    done = meta.get("passes_done")
+    done: Any = meta.get("passes_done")
     h, w = shape
     expected = {"count": ((h, w), np.int64), "nonfinite": ((h, w), np.int64),
                 "mean": ((h, w, 3), np.float64), "m2": ((h, w, 3), np.float64)}
@@ -467,7 +467,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                                f"{index}, planned {count}")
         return part
 
-    job = Job(key, range(plan.passes), render_pass, _merge)
+    job = Job(key, plan.passes, render_pass, _merge)
     saver = _StateSaver(key, plan, finished_path, partial_path, seconds, cache)
     bar = Progress(plan.passes, enabled=progress, desc="reference", initial=done)
     before = start.samples if start is not None else 0

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     spp_text = f"spp {ref.spp}" + (f" (requested {args.spp})" if ref.spp != args.spp else "")
     nonfinite = int(ref.stats.nonfinite.sum())
     print(f"reference {width}x{height}  sampler {ref.sampler}  {spp_text}  passes {ref.passes} "
-          f"({ref.plan.describe()})  samples {ref.drawn_samples}"
+          f"({ref.plan.describe() if ref.plan else ''})  samples {ref.drawn_samples}"
           + (f" ({nonfinite} non-finite, excluded)" if nonfinite else ""))
     print(f"render time {ref.seconds:.2f} s  {ref.samples_per_second / 1e6:.2f} M samples/s  "
           f"mean stderr {float(np.mean(ref.standard_error)):.3g}  "

@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
     stem = output_stem(args.output, f"{Path(args.scene).stem}_{name}")
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
     adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
-    heat_path = stem.with_name(stem.name + "_spp.png") if adaptive_settings else None
-    check_output_files(exr_path, png_path, *([heat_path] if heat_path else []))
+    heat_path = stem.with_name(stem.name + "_spp.png")
+    check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
     check_free_space(exr_path.parent, scene)
     metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
     if adaptive_settings is not None:

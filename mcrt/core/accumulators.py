@@ -15,7 +15,8 @@ lanes) and reduce them per pixel, each pixel's samples in sample order.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
@@ -26,7 +27,7 @@ from .stats import PixelStats
 from .trace import CameraSamples, film_grid_size
 
 
-def _finite(values: list[mi.Float]) -> mi.Bool:
+def _finite(values: Sequence[Any]) -> mi.Bool:
     finite = dr.isfinite(values[0])
     for v in values[1:]:
         finite &= dr.isfinite(v)
@@ -68,7 +69,7 @@ class FilmAccumulator:
                         for dx in range(-reach, reach + 1)]
         self.sums = [dr.zeros(mi.Float64, self.ext[0] * self.ext[1]) for _ in range(channels)]
         self.nonfinite = dr.zeros(mi.UInt32, self.grid[0] * self.grid[1])
-        self._pending: tuple[list[mi.Float64], mi.UInt32] | None = None
+        self._pending: tuple[list[Any], Any] | None = None
 
     # -- the engine's interface ------------------------------------------------
     def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
@@ -78,25 +79,35 @@ class FilmAccumulator:
         kept = [dr.select(finite, v, 0.0) for v in values]
         bad = dr.select(finite, mi.UInt32(0), mi.UInt32(1))
         if group == 1 and self.box:  # one sample per pixel and lane: fold in while tracing
-            sums = [s + mi.Float64(v) for s, v in zip(self.sums, kept)]
-            nonfinite = self.nonfinite + bad
+            terms: list[Any] = [mi.Float64(v) for v in kept]
+            bad_pixels: Any = bad
         else:
             position = mi.Point2f(samples.position)
             dr.eval(kept, bad, position)  # the pass's samples (and the sampler's next state)
-            nonfinite = self.nonfinite + (bad if group == 1 else dr.block_sum(bad, group))
+            bad_pixels = bad if group == 1 else dr.block_sum(bad, group)
             if self.box:
                 # float64: Dr.Jit's float32 block_sum drifts (2^14+ copies of 0.3 sum to
                 # 2e-5 relative off).
-                sums = [s + dr.block_sum(mi.Float64(v), group) for s, v in zip(self.sums, kept)]
+                terms = [dr.block_sum(mi.Float64(v), group) for v in kept]
             else:
-                sums = [s + t for s, t in zip(self.sums, self._gathered(kept, position, group))]
-        dr.eval(sums, nonfinite)
-        self._pending = (sums, nonfinite)
+                terms = self._gathered(kept, position, group)
+            dr.eval(terms, bad_pixels)
+        self._pending = (terms, bad_pixels)
 
     def commit(self) -> None:
-        if self._pending is not None:
-            self.sums, self.nonfinite = self._pending
-            self._pending = None
+        """Add the pass into the sums in place: one add per element, no two lanes
+        on one element (so no atomics and no second copy of the sums), in the
+        kernel that traces the pass when it has one sample per pixel."""
+        if self._pending is None:
+            return
+        terms, bad = self._pending
+        pixels = dr.arange(mi.UInt32, dr.width(self.sums[0]))
+        for s, t in zip(self.sums, terms):
+            dr.scatter_add(s, t, pixels, mode=dr.ReduceMode.NoConflicts)
+        dr.scatter_add(self.nonfinite, bad, dr.arange(mi.UInt32, dr.width(self.nonfinite)),
+                       mode=dr.ReduceMode.NoConflicts)
+        dr.eval(self.sums, self.nonfinite)
+        self._pending = None
 
     def state(self) -> dict[str, np.ndarray]:
         w, h = self.ext
@@ -114,12 +125,16 @@ class FilmAccumulator:
         self.nonfinite = mi.UInt32(nonfinite.astype(np.uint32).ravel())
 
     # -- results ----------------------------------------------------------------
-    def develop(self, sums: np.ndarray | None = None) -> mi.TensorXf:
-        """Hand the sums to a cleared film and develop it."""
-        if sums is None:
-            sums = self.state()["sums"]
+    def develop(self) -> Any:
+        """Hand the sums to a cleared film and develop it (all on the device)."""
+        w, h = self.ext
+        flat = dr.zeros(mi.Float, w * h * self.channels)
+        index = dr.arange(mi.UInt32, w * h) * self.channels
+        for c, s in enumerate(self.sums):  # interleave the channels: no two writes collide
+            dr.scatter(flat, mi.Float(s), index + c)
         self.film.clear()
-        block = mi.ImageBlock(mi.TensorXf(sums.astype(np.float32)), self.offset,
+        tensor: Any = mi.TensorXf(flat, shape=(h, w, self.channels))
+        block = mi.ImageBlock(tensor, self.offset,
                               self.film.rfilter(), border=self.border > 0)
         self.film.put_block(block)
         return self.film.develop()
@@ -158,8 +173,8 @@ class FilmAccumulator:
         zeros = [dr.zeros(mi.Float64, w * h) for _ in kept]
         if group == 1:
             return contributions(mi.UInt32(0), zeros)
-        state = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group,
-                              lambda k, *s: (k + 1, *contributions(k, list(s))))
+        state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group,
+                                   lambda k, *s: (k + 1, *contributions(k, list(s))))
         return list(state[1:])
 
 
@@ -252,11 +267,11 @@ def sequential_block_sums(blocks: int, size: int,
     (the same bits whatever the thread count; many outputs, one pass)."""
     first = dr.arange(mi.UInt32, blocks) * size
 
-    def body(k, *sums):
+    def body(k: Any, *sums: Any) -> tuple[Any, ...]:
         return (k + 1, *(total + mi.Float64(value)
                          for total, value in zip(sums, contributions(first + k))))
 
-    state = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float64, blocks)] * outputs),
+    state: Any = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float64, blocks)] * outputs),
                           lambda k, *sums: k < size, body)
     result = list(state[1:])
     dr.eval(result)

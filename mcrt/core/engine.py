@@ -27,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
@@ -82,15 +82,19 @@ def pass_shape(pixels: int, spp: int, max_lanes: int | None = None,
     return PassShape(pixels, spp, group)
 
 
-class Accumulator(Protocol):
-    """What the engine feeds each pass into."""
+class PassSink(Protocol):
+    """What one traced pass is fed into (see :func:`trace_pass`)."""
 
-    def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
+    def add(self, samples: CameraSamples, values: list[Any], group: int) -> None:
         """Compute (and evaluate) the sums with this pass's ``values`` added;
         keep them pending until :meth:`commit`."""
 
     def commit(self) -> None:
         """Make the pending sums current (called with interrupts held back)."""
+
+
+class Accumulator(PassSink, Protocol):
+    """A sink that accumulates a whole render and can be checkpointed."""
 
     def state(self) -> dict[str, np.ndarray]:
         """The sums as numpy arrays (for checkpoints and results)."""
@@ -108,10 +112,10 @@ def sampling_integrator(scene: mi.Scene) -> mi.SamplingIntegrator:
     return integrator
 
 
-def film_values(film: mi.Film, samples: CameraSamples) -> list[mi.Float]:
+def film_values(film: mi.Film, samples: CameraSamples) -> list[Any]:
     """The channels an ``ImageBlock`` of ``film`` receives for each sample:
     R, G, B, [A,] the weight 1, then the integrator's AOVs."""
-    values = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
+    values: list[Any] = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
     if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
         values.append(dr.select(samples.valid, mi.Float(1.0), mi.Float(0.0)))
     values.append(mi.Float(1.0))
@@ -181,7 +185,7 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
                run: PassRun, seed: int, sensor: int = 0,
                on_pass: Callable[[int, int], None] | None = None,
                progress: Progress | None = None,
-               values: Callable[[mi.Film, CameraSamples], list[mi.Float]] = film_values) -> None:
+               values: Callable[[mi.Film, CameraSamples], list[Any]] = film_values) -> None:
     """Trace passes ``run.done .. run.shape.passes - 1`` of ``scene`` into
     ``accumulator``; ``run`` is updated after every committed pass.
 
@@ -194,7 +198,8 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
     integrator = sampling_integrator(scene)
     film = sensor_obj.film()
     sampler.set_samples_per_wavefront(shape.group)
-    sampler.seed(resume_seed(sampler, seed, run.done), shape.lanes)
+    start_seed: Any = resume_seed(sampler, seed, run.done)  # the stub wants a UInt array
+    sampler.seed(start_seed, shape.lanes)
     if is_mcrt_sampler(sampler):
         for _ in range(run.done):
             sampler.advance()  # counter-based: the exact next samples
@@ -218,9 +223,9 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
 
 
 def trace_pass(scene: mi.Scene, sensor: mi.Sensor, integrator: mi.SamplingIntegrator,
-               sampler: mi.Sampler, pixel: mi.Vector2i, spp: int, accumulator: Accumulator,
+               sampler: mi.Sampler, pixel: mi.Vector2i, spp: int, accumulator: PassSink,
                group: int,
-               values: Callable[[mi.Film, CameraSamples], list[mi.Float]] = film_values,
+               values: Callable[[mi.Film, CameraSamples], list[Any]] = film_values,
                committed: Callable[[], None] | None = None) -> None:
     """The step every render repeats: trace one wavefront (``sampler`` seeded for
     it, ``group`` consecutive lanes per pixel), advance the sampler, let the
@@ -230,9 +235,9 @@ def trace_pass(scene: mi.Scene, sensor: mi.Sensor, integrator: mi.SamplingIntegr
     sampler.advance()
     sampler.schedule_state()
     accumulator.add(samples, values(sensor.film(), samples), group)
-    dr.sync_thread()
-    with deferred_interrupts():
+    with deferred_interrupts():  # an accumulator may update its sums in place here
         accumulator.commit()
+        dr.sync_thread()
         if committed is not None:
             committed()
 

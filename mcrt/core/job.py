@@ -24,7 +24,7 @@ import logging
 import os
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
@@ -49,10 +49,11 @@ def content_key(payload: dict[str, Any]) -> str:
     import drjit as dr
     import mitsuba as mi
 
-    from .. import __version__
+    from .._version import __version__
 
+    drjit_version = dr.__version__  # type: ignore[attr-defined]  # not in drjit's stubs
     full = {**payload, "variant": mi.variant(),
-            "versions": [__version__, mi.__version__, dr.__version__]}
+            "versions": [__version__, mi.__version__, drjit_version]}
     text = json.dumps(full, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
@@ -233,22 +234,22 @@ class Interrupted(KeyboardInterrupt):
 
 # --------------------------------------------------------------------------- jobs
 
-T = TypeVar("T")
 R = TypeVar("R")
 
 
 @dataclass
-class Job(Generic[T, R]):
-    """A deterministic list of ``tasks``; ``run(task)`` is a pure function of its
-    task, ``fold(total, result)`` combines results in task order."""
+class Job(Generic[R]):
+    """``tasks`` deterministic tasks, numbered from 0: ``run(index)`` is a pure
+    function of the task's index, ``fold(total, result)`` combines results in
+    task order. ``key`` identifies the job (:func:`content_key`)."""
 
     key: str
-    tasks: Sequence[T]
-    run: Callable[[T], R]
+    tasks: int
+    run: Callable[[int], R]
     fold: Callable[[R | None, R], R]
 
 
-def run_job(job: Job[T, R], executor: Any = None, done: int = 0, total: R | None = None,
+def run_job(job: Job[R], executor: Any = None, done: int = 0, total: R | None = None,
             on_fold: Callable[[int, R], None] | None = None) -> R | None:
     """Run ``job.tasks[done:]`` and fold their results, in task order, into
     ``total`` (the fold of the first ``done`` results). ``on_fold(count, total)``
@@ -272,5 +273,5 @@ def run_job(job: Job[T, R], executor: Any = None, done: int = 0, total: R | None
     except KeyboardInterrupt as stop:
         if isinstance(stop, Interrupted):
             raise
-        raise Interrupted(total, next_index, len(job.tasks)) from None
+        raise Interrupted(total, next_index, job.tasks) from None
     return total

@@ -12,9 +12,11 @@ bit-identically.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
@@ -39,7 +41,13 @@ class FilmRender:
     seconds: float  # wall time of the passes, synchronised (kernel compilation included)
     pixels: int
     nonfinite: np.ndarray  # (grid height, grid width) samples left out
-    checkpoint: Checkpoint | None = None  # the film's sums, to develop again later
+    state: Callable[[], Checkpoint] | None = None  # makes the checkpoint (on demand)
+
+    @property
+    def checkpoint(self) -> Checkpoint | None:
+        """The film's sums, to resume or develop again later (built when asked for:
+        a render that writes its files never pays for a copy of its sums)."""
+        return self.state() if self.state is not None else None
 
     @property
     def nonfinite_samples(self) -> int:
@@ -73,10 +81,22 @@ class StatsRender:
         return self.stats.samples + int(self.stats.nonfinite.sum())
 
 
-def channel_names(film: mi.Film, count: int) -> list[str]:
-    """Names of the developed film's channels (as Mitsuba's bitmap labels them)."""
+#: Channels of a developed film by its ``pixel_format`` (Mitsuba's labels).
+_FORMAT_CHANNELS = {"rgb": "RGB", "rgba": "RGBA", "luminance": "Y", "luminance_alpha": "YA",
+                    "xyz": "XYZ", "xyza": "XYZA"}
+
+
+def channel_names(film: mi.Film, count: int, aovs: list[str] | None = None) -> list[str]:
+    """Names of the developed film's channels (as Mitsuba's bitmap labels them),
+    read from the film's pixel format and the integrator's AOVs (asking the
+    film for a bitmap would develop it once more)."""
+    match = re.search(r"pixel_format = (\w+)", str(film))
+    base = list(_FORMAT_CHANNELS.get(match.group(1), "")) if match else []
+    if base and len(base) + len(aovs or []) == count:
+        return base + list(aovs or [])
     try:
-        names = [f.name for f in film.bitmap().struct_()]
+        bitmap: Any = film.bitmap()  # struct_() is missing from Mitsuba's stubs
+        names = [f.name for f in bitmap.struct_()]
     except Exception:  # films without a bitmap view: generic names
         names = []
     if len(names) != count:
@@ -135,15 +155,19 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
         accumulator.restore(resume.arrays)
         run.done, run.seconds = int(resume.meta["done"]), float(resume.meta["seconds"])
 
+    def checkpoint(done: int = 0, seconds: float = 0.0) -> Checkpoint:
+        return Checkpoint({"settings": [spp, run.shape.passes, seed], "done": done,
+                           "seconds": seconds}, accumulator.state())
+
     def result() -> FilmRender:
-        state = accumulator.state()
-        array = np.array(accumulator.develop(state["sums"]), dtype=np.float32)
-        checkpoint = Checkpoint({"settings": [spp, run.shape.passes, seed], "done": run.done,
-                                 "seconds": run.seconds}, state)
-        return FilmRender(image=array, channels=channel_names(film, array.shape[-1]),
-                          spp=run.done * run.shape.group, passes=run.done, seconds=run.seconds,
-                          pixels=width * height, nonfinite=state["nonfinite"],
-                          checkpoint=checkpoint)
+        array = np.asarray(accumulator.develop().numpy(), dtype=np.float32)
+        done, seconds = run.done, run.seconds
+        nonfinite = np.array(accumulator.nonfinite, dtype=np.int64).reshape(height, width)
+        names = channel_names(film, array.shape[-1], sampling_integrator(scene).aov_names())
+        return FilmRender(image=array, channels=names,
+                          spp=done * run.shape.group, passes=done, seconds=seconds,
+                          pixels=width * height, nonfinite=nonfinite,
+                          state=lambda: checkpoint(done, seconds))
 
     try:
         _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)

@@ -14,6 +14,7 @@ CIE curves, a monochrome value copied into the three channels.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
@@ -32,9 +33,9 @@ class CameraSamples:
     #: Whether the integrator produced a valid sample (alpha).
     valid: mi.Bool
     #: Extra channels from AOV integrators, in ``integrator.aov_names()`` order.
-    aovs: list[mi.Float]
+    aovs: list[Any]
     #: Wavelengths of the ray (needed by ``ImageBlock.put``).
-    wavelengths: mi.Spectrum
+    wavelengths: Any
 
 
 def film_grid_size(film: mi.Film) -> mi.ScalarVector2u:
@@ -56,8 +57,7 @@ def pixel_of_index(film: mi.Film, index: mi.UInt32) -> mi.Vector2i:
     return pos + mi.Vector2i(film.crop_offset())
 
 
-def to_rgb(value: mi.Spectrum, wavelengths: mi.Spectrum,
-           active: mi.Bool | bool = True) -> mi.Color3f:
+def to_rgb(value: Any, wavelengths: Any, active: Any = True) -> mi.Color3f:
     """The linear RGB an ``ImageBlock`` stores for a radiance ``value``."""
     if mi.is_spectral:
         return mi.spectrum_to_srgb(value, wavelengths, active)
@@ -68,7 +68,7 @@ def to_rgb(value: mi.Spectrum, wavelengths: mi.Spectrum,
 
 def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
           integrator: mi.SamplingIntegrator, pixel: mi.Vector2i, spp: int,
-          active: mi.Bool | bool = True) -> CameraSamples:
+          active: Any = True) -> CameraSamples:
     """Draw one camera sample per lane at integer ``pixel`` and integrate it.
 
     ``sampler`` must already be seeded for ``dr.width(pixel)`` lanes. ``spp`` is
@@ -79,24 +79,27 @@ def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
     scale = 1.0 / crop_size
     offset = -mi.ScalarVector2f(film.crop_offset()) * scale
 
-    position = mi.Vector2f(pixel) + sampler.next_2d(active)
+    jitter: Any = sampler.next_2d(active)
+    position: Any = mi.Vector2f(pixel) + jitter
     adjusted = dr.fma(position, scale, offset)
 
     aperture = mi.Point2f(0.5)
     if sensor.needs_aperture_sample():
         aperture = sampler.next_2d(active)
 
-    time = mi.Float(sensor.shutter_open())
+    # Mitsuba's stubs type these arrays as Dr.Jit's, not as mi.Float: Any for both.
+    time: Any = mi.Float(sensor.shutter_open())
     if sensor.shutter_open_time() > 0:
         time += sampler.next_1d(active) * sensor.shutter_open_time()
 
-    wavelength = mi.Float(0.0)
+    wavelength: Any = mi.Float(0.0)
     if mi.is_spectral:
         wavelength = sampler.next_1d(active)
 
     ray, ray_weight = sensor.sample_ray_differential(time, wavelength, adjusted, aperture, active)
     if ray.has_differentials:
-        ray.scale_differential(dr.rsqrt(float(spp)))
+        scale_factor: Any = dr.rsqrt(float(spp))
+        ray.scale_differential(scale_factor)
 
     spec, valid, aovs = integrator.sample(scene, sampler, ray, sensor.get_medium(), active)
     return CameraSamples(pixel=pixel, position=position,

@@ -315,8 +315,8 @@ class _Wavefront:
             self.pending = None
 
 
-def _rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[mi.Float]:
-    values = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
+def _rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[Any]:
+    values: list[Any] = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
     if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
         values.append(dr.select(samples.valid, mi.Float(1.0), mi.Float(0.0)))
     return values
