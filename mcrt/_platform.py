@@ -61,6 +61,7 @@ def ensure_variant() -> str:
 
     variant = mi.variant()
     wanted = variant or DEFAULT_VARIANT
+    check_vectorised(wanted)
     if wanted.startswith("llvm_"):
         usable, message = llvm_status()
         if not usable:
@@ -69,6 +70,40 @@ def ensure_variant() -> str:
         mi.set_variant(DEFAULT_VARIANT)
         variant = DEFAULT_VARIANT
     return variant
+
+
+def check_vectorised(variant: str) -> None:
+    """mcrt traces wavefronts with Dr.Jit: refuse a scalar variant in one line."""
+    if variant.startswith("scalar_"):
+        raise SetupError(f"mcrt renders with Mitsuba's vectorised variants (llvm_* or cuda_*, "
+                         f"e.g. llvm_ad_rgb); {variant!r} is a scalar variant")
+
+
+def select_variant(name: str) -> str:
+    """Activate variant ``name`` (the CLI's ``--variant``) with one-line errors for
+    unknown, scalar, unusable (no libLLVM) or unavailable (no GPU) variants."""
+    import mitsuba as mi
+
+    if name not in mi.variants():
+        raise SetupError(f"unknown variant {name!r}; this Mitsuba has: "
+                         f"{', '.join(v for v in mi.variants() if not v.startswith('scalar_'))}")
+    check_vectorised(name)
+    if name.startswith("llvm_"):
+        usable, message = llvm_status()
+        if not usable:
+            raise SetupError(message)
+    if name.startswith("cuda_"):
+        import drjit as dr
+
+        if not dr.has_backend(dr.JitBackend.CUDA):
+            raise SetupError(f"variant {name!r} needs an NVIDIA GPU with its driver (CUDA); "
+                             f"none was found: use an llvm_* variant")
+    try:
+        mi.set_variant(name)
+    except Exception as error:  # e.g. a cuda_* variant on a machine without a GPU
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise SetupError(f"cannot use variant {name!r}: {first}") from None
+    return name
 
 
 class _OneLineSetupErrors:

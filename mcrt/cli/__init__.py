@@ -34,6 +34,9 @@ COMMANDS: dict[str, str] = {
 #: Options of ``mcrt`` itself (before the subcommand) that take no value.
 _TOP_LEVEL_FLAGS = ("-q", "--quiet")
 
+#: The option choosing Mitsuba's variant (it takes a value).
+_VARIANT = "--variant"
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (argparse's default prints the usage too)."""
@@ -49,6 +52,9 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
     """
     parser = _Parser(prog="mcrt", description=(__doc__ or "mcrt").splitlines()[0])
     parser.add_argument(*_TOP_LEVEL_FLAGS, action="store_true", help="no progress bars or notes")
+    parser.add_argument(_VARIANT, metavar="NAME", default=None,
+                        help="Mitsuba variant to render with (default llvm_ad_rgb; also "
+                             "llvm_ad_spectral, llvm_ad_mono, cuda_ad_* where a GPU exists)")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     subparsers.required = True
     for name in COMMANDS if commands is None else commands:
@@ -64,10 +70,29 @@ def command_of(argv: Sequence[str]) -> str | None:
     None otherwise (``--help``, an abbreviated option, a typo, nothing): then the
     full parser decides, and reports.
     """
+    skip = False
     for arg in argv:
-        if arg not in _TOP_LEVEL_FLAGS:
+        if skip:
+            skip = False
+        elif arg == _VARIANT:
+            skip = True
+        elif arg not in _TOP_LEVEL_FLAGS and not arg.startswith(_VARIANT + "="):
             return arg if arg in COMMANDS else None
     return None
+
+
+def _use_variant(name: str | None) -> None:
+    """Switch Mitsuba to ``--variant NAME`` and register mcrt's plugins for it."""
+    if name is None:
+        return
+    import mitsuba as mi
+
+    from .. import register
+    from .._platform import select_variant
+
+    if mi.variant() != name:
+        select_variant(name)
+        register()
 
 
 def _configure_logging(quiet: bool) -> None:
@@ -88,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser(None if command is None else [command]).parse_args(argv)
     _configure_logging(args.quiet)
     try:
+        _use_variant(args.variant)
         return int(args.run(args) or 0)
     except McrtError as error:
         print(f"mcrt: error: {_one_line(error)}", file=sys.stderr)

@@ -13,11 +13,11 @@ layer                            EXR channels
 ``name`` (H, W, 3)               ``name.R``, ``name.G``, ``name.B``
 ``name`` (H, W, 4)               ``name.R``, ``name.G``, ``name.B``, ``name.A``
 ``name`` (H, W) or (H, W, 1)     ``name.Y``
+``"rgb"`` (H, W) or (H, W, 1)    ``Y`` (a luminance image)
 ===============================  ==========================================
 
 :data:`MAIN_LAYER` (``"rgb"``) is the layer that becomes the unprefixed ``R G B
-(A)`` channels every EXR viewer shows by default; it must have 3 or 4
-channels. Layer names must be non-empty and must not contain ``"."``. Every
+(A)`` (or ``Y``) channels every EXR viewer shows by default. Layer names must be non-empty and must not contain ``"."``. Every
 channel is stored as 32-bit float (``FLOAT``, never ``HALF``) with lossless ZIP
 compression, so a float32 array round-trips bit for bit (NaN and Inf included).
 Arrays of other dtypes are converted to float32 first (integers are exact up to
@@ -81,9 +81,7 @@ def _layer_channels(name: str, array) -> list[tuple[str, np.ndarray]]:
     a = np.asarray(array)
     if a.ndim == 3 and a.shape[2] == 1:
         a = a[:, :, 0]
-    if a.ndim == 2:
-        if name == MAIN_LAYER:
-            raise ValueError(f"the {MAIN_LAYER!r} layer needs 3 or 4 channels, got shape {a.shape}")
+    if a.ndim == 2:  # a luminance image (as a mono variant or luminance film develops)
         suffixes: tuple[str, ...] = ("Y",)
         planes = [a]
     elif a.ndim == 3 and a.shape[2] in (3, 4):
@@ -182,7 +180,7 @@ def _group_channels(channels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     for prefix, members in by_prefix.items():
         name = prefix if prefix else MAIN_LAYER
         group = next((g for g in _GROUPS if set(g) == set(members)), None)
-        if group is not None and not (prefix == "" and group in (("X", "Y", "Z"), ("Y",))):
+        if group is not None and not (prefix == "" and group == ("X", "Y", "Z")):
             layers[name] = members[group[0]] if len(group) == 1 else \
                 np.stack([members[s] for s in group], axis=-1)
         else:
