@@ -17,11 +17,11 @@ layer                            EXR channels
 ===============================  ==========================================
 
 :data:`MAIN_LAYER` (``"rgb"``) is the layer that becomes the unprefixed ``R G B
-(A)`` (or ``Y``) channels every EXR viewer shows by default. Layer names must be non-empty and must not contain ``"."``. Every
-channel is stored as 32-bit float (``FLOAT``, never ``HALF``) with lossless ZIP
-compression, so a float32 array round-trips bit for bit (NaN and Inf included).
-Arrays of other dtypes are converted to float32 first (integers are exact up to
-2**24).
+(A)`` (or ``Y``) channels every EXR viewer shows by default. Layer names must be
+non-empty and must not contain ``"."``. Every channel is stored as 32-bit float
+(``FLOAT``, never ``HALF``) with lossless ZIP compression, so a float32 array
+round-trips bit for bit (NaN and Inf included). Arrays of other dtypes are
+converted to float32 first (integers are exact up to 2**24).
 
 ``read_exr`` inverts this: unprefixed ``R G B (A)`` become ``"rgb"``, ``name.R
 name.G name.B (name.A)`` become an (H, W, 3|4) layer, ``name.Y`` an (H, W)

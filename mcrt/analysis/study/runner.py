@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ... import __version__
+from ...core.progress import Progress
 from ...core.stats import PixelStats
 from ...errors import McrtError
 from ..aliasing import aliasing_score
@@ -136,7 +137,8 @@ def run_study(config: StudyConfig, progress: bool = False,
     """
     if not config.effective_spp:
         check_config(config)
-    run = _Run(config, state, _Progress(config.renders, progress))
+    bar = Progress(config.renders, progress, unit="render", desc="study", leave=True)
+    run = _Run(config, state, bar)
     try:
         for spec in config.scenes:
             run.scene(spec)
@@ -148,35 +150,6 @@ def run_study(config: StudyConfig, progress: bool = False,
 
 
 # --------------------------------------------------------------------------- the steps
-
-
-class _Progress:
-    """A tqdm bar over the study's renders, or nothing."""
-
-    def __init__(self, total: int, enabled: bool):
-        self.bar: Any = None
-        if enabled:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, unit="render", desc="study", dynamic_ncols=True)
-
-    def describe(self, text: str) -> None:
-        if self.bar is not None:
-            self.bar.set_description(text, refresh=True)
-
-    def note(self, text: str) -> None:
-        if self.bar is not None:
-            self.bar.write(text)
-        else:
-            log.info("%s", text)
-
-    def update(self, n: int = 1) -> None:
-        if self.bar is not None:
-            self.bar.update(n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
 
 
 @dataclass
@@ -213,7 +186,7 @@ class _Scene:
 class _Run:
     """One run of a study: what is measured so far, and the steps that measure it."""
 
-    def __init__(self, config: StudyConfig, state: StudyState | None, bar: _Progress):
+    def __init__(self, config: StudyConfig, state: StudyState | None, bar: Progress):
         self.config = config
         self.state = state
         self.bar = bar
