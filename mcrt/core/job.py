@@ -235,22 +235,23 @@ class Interrupted(KeyboardInterrupt):
 # --------------------------------------------------------------------------- jobs
 
 R = TypeVar("R")
+T = TypeVar("T")
 
 
 @dataclass
-class Job(Generic[R]):
+class Job(Generic[R, T]):
     """``tasks`` deterministic tasks, numbered from 0: ``run(index)`` is a pure
     function of the task's index, ``fold(total, result)`` combines results in
-    task order. ``key`` identifies the job (:func:`content_key`)."""
+    task order into a total. ``key`` identifies the job (:func:`content_key`)."""
 
     key: str
     tasks: int
     run: Callable[[int], R]
-    fold: Callable[[R | None, R], R]
+    fold: Callable[[T | None, R], T]
 
 
-def run_job(job: Job[R], executor: Any = None, done: int = 0, total: R | None = None,
-            on_fold: Callable[[int, R], None] | None = None) -> R | None:
+def run_job(job: Job[R, T], executor: Any = None, done: int = 0, total: T | None = None,
+            on_fold: Callable[[int, T], None] | None = None) -> T | None:
     """Run ``job.tasks[done:]`` and fold their results, in task order, into
     ``total`` (the fold of the first ``done`` results). ``on_fold(count, total)``
     runs after each fold (to checkpoint and report progress).

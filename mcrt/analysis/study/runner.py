@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ... import __version__
+from ...core.job import Job, run_job
 from ...core.progress import Progress
 from ...core.stats import PixelStats
 from ...errors import McrtError
@@ -183,6 +184,11 @@ class _Scene:
         return render_film(planned.scene, sampler, seed=seed, passes=subframes, on_pass=move)
 
 
+def _collect(total: list[Any] | None, result: Any) -> list[Any]:
+    """Fold of a cell's per-seed results: their list, in seed order."""
+    return [*(total or []), result]
+
+
 class _Run:
     """One run of a study: what is measured so far, and the steps that measure it."""
 
@@ -199,6 +205,8 @@ class _Run:
         self.reference_images: dict[str, np.ndarray] = {}
         self.cells: list[dict[str, Any]] = []
         self.images: dict[tuple[str, str], CellImages] = {}
+        #: runs the seeds of a cell (:mod:`mcrt.core.executor`; in-process by default)
+        self.executor: Any = None
         #: the cell being rendered (see StudyResult.interrupted)
         self.current: dict[str, Any] | None = None
         self.resumed = 0
@@ -284,14 +292,18 @@ class _Run:
             warmup = make_sampler(sampler.name, spp, **sampler.params)
             scene.render(warmup, WARMUP_SEED)  # untimed: compiles/caches kernels
         self.bar.update()
-        per_seed: list[dict[str, Any]] = []
-        renders: list[np.ndarray] = []
-        for seed in self.config.seeds:
-            values, rgb = self.render_seed(scene, sampler, spp, seed, ref)
-            per_seed.append(values)
-            renders.append(rgb)
-            current["seeds_done"] = len(per_seed)
+        seeds = self.config.seeds
+
+        def on_fold(done: int, _: list[tuple[dict[str, Any], np.ndarray]]) -> None:
+            current["seeds_done"] = done
             self.bar.update()
+
+        # The cell's seeds are the tasks of a job, folded in seed order.
+        job: Job[Any, list[Any]] = Job(f"{name}/{sampler.label}/{spp}", len(seeds),
+                  lambda i: self.render_seed(scene, sampler, spp, seeds[i], ref), _collect)
+        results = run_job(job, self.executor, on_fold=on_fold) or []
+        per_seed = [values for values, _ in results]
+        renders = [rgb for _, rgb in results]
         stats = PixelStats.from_images(renders)
         cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
                               ref.floor, k)
