@@ -121,9 +121,21 @@ def test_read_exr_of_a_file_written_by_mitsuba(tmp_path):
     np.testing.assert_array_equal(got["rgb"], rgb)
 
 
+def test_a_luminance_main_layer_is_the_unprefixed_y_channel(tmp_path):
+    """A monochrome render (llvm_ad_mono, luminance films) writes one channel, Y,
+    as Mitsuba labels it, and reads back as the main layer."""
+    import OpenEXR
+
+    y = np.arange(H * W, dtype=np.float32).reshape(H, W)
+    write_exr(tmp_path / "y.exr", {"rgb": y})
+    assert list(OpenEXR.File(str(tmp_path / "y.exr")).channels()) == ["Y"]
+    layers, _ = read_exr(tmp_path / "y.exr")
+    np.testing.assert_array_equal(layers["rgb"], y)
+
+
 @pytest.mark.parametrize("bad_layers, error", [
     ({}, ValueError),
-    ({"rgb": np.zeros((H, W))}, ValueError),                      # main layer needs 3|4 ch
+    ({"rgb": np.zeros((H, W, 2))}, ValueError),                   # main layer: 1, 3 or 4 ch
     ({"a.b": np.zeros((H, W))}, ValueError),                      # '.' in a layer name
     ({"x": np.zeros((H, W, 2))}, ValueError),                     # 2 channels
     ({"x": np.zeros((H, W)), "y": np.zeros((H, W + 1))}, ValueError),  # size mismatch
