@@ -450,3 +450,19 @@ def test_contact_sheet(tmp_path):
         contact_sheet([])
     with pytest.raises(McrtError):
         write_contact_sheet(tmp_path / "missing" / "s.png", images)
+
+
+def test_threshold_encoding_equals_the_transfer_function():
+    """encode_srgb counts thresholds instead of evaluating the transfer function per
+    pixel: the codes must be the same for every value, at and next to every
+    threshold, and for 2e6 random float32 values (what films hold)."""
+    from mcrt.io.png import _code, code_thresholds, encode_srgb
+
+    t = code_thresholds()
+    assert np.all(np.diff(t) > 0) and len(t) == 255
+    rng = np.random.default_rng(7)
+    x = np.concatenate([t, np.nextafter(t, 0.0), np.nextafter(t, 2.0), [0.0, 1.0],
+                        rng.random(2_000_000).astype(np.float32),
+                        (rng.random(200_000) * 0.004).astype(np.float32)])
+    image = np.repeat(x[None, :, None], 3, axis=2)
+    np.testing.assert_array_equal(encode_srgb(image)[0, :, 0], _code(np.clip(x, 0.0, 1.0)))

@@ -25,6 +25,7 @@ anything ``numpy.asarray`` converts to those (``mi.TensorXf``, ``mi.Bitmap``).
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Sequence
@@ -50,7 +51,7 @@ def _as_rgb(rgb_linear) -> np.ndarray:
                          f"(H, W, 4), got {a.shape}")
     if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
         raise ValueError(f"expected real pixel values, got dtype {a.dtype}")
-    return a.astype(np.float64)
+    return a
 
 
 #: End of the linear segment of the sRGB encoding (IEC 61966-2-1).
@@ -68,29 +69,63 @@ def srgb_transfer(x: np.ndarray) -> np.ndarray:
     return np.where(x <= SRGB_LINEAR_LIMIT, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
+def _code(x: np.ndarray) -> np.ndarray:
+    """The display rule's 8-bit code of linear values already clipped to [0, 1]."""
+    return np.floor(np.clip(srgb_transfer(x), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+@functools.cache
+def code_thresholds() -> np.ndarray:
+    """For k = 1..255, the smallest float64 ``x`` in [0, 1] whose code is >= k.
+
+    The code is a non-decreasing function of ``x``, so the code of any ``x`` is
+    the number of thresholds <= ``x`` (``np.searchsorted``): the same bytes as
+    evaluating the transfer function per pixel, at a fraction of the time and
+    memory. Found by bisection on the float64 bit patterns (ordered like the
+    values for non-negative floats), 64 steps per threshold.
+    """
+    lo = np.zeros(255, np.int64)  # bits of 0.0: code 0
+    hi = np.full(255, np.float64(1.0).view(np.int64))  # bits of 1.0: code 255
+    want = np.arange(1, 256)
+    for _ in range(64):
+        mid = (lo + hi) // 2
+        high_enough = _code(mid.view(np.float64)) >= want
+        hi = np.where(high_enough, mid, hi)
+        lo = np.where(high_enough, lo, mid)
+    return hi.view(np.float64)
+
+
+#: Rows encoded at a time: the encoder's memory stays bounded for any image size.
+ROWS_PER_CHUNK = 256
+
+
 def encode_srgb(rgb_linear, exposure: float = 0.0) -> np.ndarray:
     """Encode linear RGB to an ``(H, W, 3)`` ``uint8`` sRGB image.
 
     Applies the module's display rule: non-finite pixels -> magenta, scale by
     ``2 ** exposure``, clip each channel to [0, 1], sRGB transfer function,
-    round to 8 bits.
+    round to 8 bits (through :func:`code_thresholds`, in chunks of rows).
     """
     if not math.isfinite(exposure):
         raise ValueError(f"exposure must be a finite number of stops, got {exposure!r}")
-    x = _as_rgb(rgb_linear)
-    bad = ~np.all(np.isfinite(x), axis=2)
-    x = np.where(bad[:, :, None], 0.0, x) * (2.0 ** exposure)
-    x = np.clip(x, 0.0, 1.0)
-    v = srgb_transfer(x)
-    out = np.floor(np.clip(v, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    out[bad] = NONFINITE_COLOUR
+    a = _as_rgb(rgb_linear)
+    out = np.empty(a.shape, np.uint8)
+    thresholds, scale = code_thresholds(), 2.0 ** exposure
+    for top in range(0, a.shape[0], ROWS_PER_CHUNK):
+        x = a[top:top + ROWS_PER_CHUNK].astype(np.float64)
+        bad = ~np.all(np.isfinite(x), axis=2)
+        x[bad] = 0.0
+        x = np.clip(x * scale, 0.0, 1.0)
+        block = np.searchsorted(thresholds, x, side="right").astype(np.uint8)
+        block[bad] = NONFINITE_COLOUR
+        out[top:top + ROWS_PER_CHUNK] = block
     return out
 
 
 def _save_png(path, image) -> None:
     """Write a PIL image as PNG to ``path`` atomically."""
     with atomic_path(path) as tmp:
-        image.save(tmp, format="PNG")
+        image.save(tmp, format="PNG", compress_level=1)  # fast; a preview, not an archive
 
 
 def write_png(path: str | os.PathLike, rgb_linear, exposure: float = 0.0) -> None:
