@@ -13,6 +13,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mcrt.analysis.pass_plan as pass_plan
 import mcrt.analysis.reference as reference
 from mcrt.analysis.reference import (
     PassPlan,
@@ -101,8 +102,8 @@ def test_plan_folds_full_passes_into_an_exact_tail():
 
 def test_default_pass_size_bounds_the_wavefront():
     plan = plan_passes("independent", 4096, pixels=1920 * 1080)
-    assert 1920 * 1080 * plan.pass_spp <= reference.LANE_BUDGET
-    assert plan_passes("independent", 4096, pixels=64).pass_spp == reference.DEFAULT_PASS_SPP
+    assert 1920 * 1080 * plan.pass_spp <= pass_plan.LANE_BUDGET
+    assert plan_passes("independent", 4096, pixels=64).pass_spp == pass_plan.DEFAULT_PASS_SPP
 
 
 def test_pass_seeds_are_distinct():
