@@ -104,7 +104,13 @@ def run(args: argparse.Namespace) -> int:
         result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
                              passes=passes, on_pass=on_pass, resume=state)
     except Interrupted as stop:
-        return _interrupted(stop, store, exr_path, png_path, metadata)
+        target = stop.state.meta["settings"][0] if stop.state is not None else spp
+
+        def write_partial(partial: FilmRender) -> str:
+            _write(exr_path, png_path, partial, {**metadata, "partial": 1, "spp_target": target})
+            return f"{exr_path} and {png_path} ({partial.spp} spp)"
+
+        return _interrupted(stop, store, write_partial, f"of {stop.total} passes")
 
     try:
         _write(exr_path, png_path, result, metadata)
@@ -124,16 +130,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _interrupted(stop: Interrupted, store: CheckpointStore, exr_path: Path, png_path: Path,
-                 metadata: dict) -> int:
-    """Ctrl-C / SIGTERM: write the finished passes as a partial image and keep a checkpoint."""
-    partial = stop.partial
-    kept = store.save(partial.checkpoint) if partial is not None and partial.checkpoint else None
-    if partial is not None:
-        target = partial.checkpoint.meta["settings"][0] if partial.checkpoint else partial.spp
-        _write(exr_path, png_path, partial, {**metadata, "partial": 1, "spp_target": target})
-        print(f"interrupted after {stop.done} of {stop.total} passes: wrote the partial image "
-              f"({partial.spp} spp) to {exr_path} and {png_path}")
+def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) -> int:
+    """Ctrl-C / SIGTERM: write the finished work as a partial image (``write(partial)``
+    returns a description of the files) and keep the checkpoint to resume from."""
+    kept = store.save(stop.state) if stop.state is not None and stop.done else None
+    if stop.partial is not None:
+        files = write(stop.partial)
+        print(f"interrupted after {stop.done} {what}: wrote the partial image to {files}")
     else:
         print("interrupted before the first pass finished: nothing written")
     if kept is not None:
@@ -227,17 +230,11 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
                                           on_pass=report, resume=state)
     except Interrupted as stop:
-        kept = store.save(stop.state) if stop.state is not None and stop.done else None
-        done = stop.done
-        if stop.partial is not None:
-            write(stop.partial, {"partial": 1})
-            print(f"interrupted after {done} adaptive passes ({stop.partial.samples} samples): "
-                  f"wrote the partial image to {exr_path}, {png_path} and {heat_path}")
-        else:
-            print("interrupted before the first pass finished: nothing written")
-        if kept is not None:
-            print(f"checkpoint {kept}: run the same command again to resume")
-        return 130
+        def write_partial(partial) -> str:
+            write(partial, {"partial": 1})
+            return f"{exr_path}, {png_path} and {heat_path} ({partial.samples} samples)"
+
+        return _interrupted(stop, store, write_partial, "adaptive passes")
     write(result, {})
     store.discard()
     height, width = result.image.shape[:2]
