@@ -225,12 +225,13 @@ def test_png_failure_mid_write_keeps_previous_file(tmp_path, monkeypatch):
     write_png(path, np.full((4, 4, 3), 0.5))
     before = path.read_bytes()
 
-    def crash(self, fp, *args, **kwargs):
-        with open(fp, "wb") as f:
-            f.write(b"\x89PNG half")
+    import mcrt.io.png as png_module
+
+    def crash(rgb8):  # the disk fills after the first bytes
+        yield b"\x89PNG half"
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(Image.Image, "save", crash)
+    monkeypatch.setattr(png_module, "_png_chunks", crash)
     with pytest.raises(ImageIOError, match="no space left on device"):
         write_png(path, np.zeros((4, 4, 3)))
     assert path.read_bytes() == before
@@ -466,3 +467,37 @@ def test_threshold_encoding_equals_the_transfer_function():
                         (rng.random(200_000) * 0.004).astype(np.float32)])
     image = np.repeat(x[None, :, None], 3, axis=2)
     np.testing.assert_array_equal(encode_srgb(image)[0, :, 0], _code(np.clip(x, 0.0, 1.0)))
+
+
+def test_float32_fast_path_gives_the_float64_codes():
+    """float32 images at exposure 0 are encoded by a table on their top 16 bits;
+    every float32 next to each of the 255 code thresholds, the specials and
+    random values must get exactly the code of the float64 path."""
+    from mcrt.io.png import code_thresholds
+
+    t = code_thresholds().astype(np.float32)
+    near = np.concatenate([t, np.nextafter(t, np.float32(0)), np.nextafter(t, np.float32(2)),
+                           np.nextafter(np.nextafter(t, np.float32(2)), np.float32(2))])
+    special = np.float32([0.0, -0.0, 1.0, 2.0, -1.0, np.nan, np.inf, -np.inf, 1e-38, 1e-45,
+                          SRGB_LINEAR_LIMIT, np.nextafter(np.float32(1), np.float32(0))])
+    rng = np.random.default_rng(3)
+    values = np.concatenate([near, special, rng.random(30_000, np.float32),
+                             rng.random(30_000, np.float32) ** 8]).astype(np.float32)
+    values = values[: len(values) // 3 * 3].reshape(1, -1, 3)
+    np.testing.assert_array_equal(encode_srgb(values), encode_srgb(values.astype(np.float64)))
+
+
+def test_png_writer_is_read_back_by_pillow(tmp_path):
+    """Our own PNG writer (no Pillow on the render path): Pillow decodes exactly
+    the encoded bytes, for sizes that span several row chunks and IDAT pieces."""
+    from mcrt.io.png import ROWS_PER_CHUNK
+
+    rng = np.random.default_rng(5)
+    for height, width in [(1, 1), (ROWS_PER_CHUNK + 3, 5), (2, 300)]:
+        rgb = rng.random((height, width, 3)).astype(np.float32)
+        rgb[0, 0] = np.nan
+        path = tmp_path / f"{height}x{width}.png"
+        write_png(path, rgb)
+        with Image.open(path) as image:
+            assert image.mode == "RGB" and image.size == (width, height)
+            np.testing.assert_array_equal(np.asarray(image), encode_srgb(rgb))

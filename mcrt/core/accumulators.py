@@ -34,6 +34,11 @@ def _finite(values: Sequence[Any]) -> mi.Bool:
     return finite
 
 
+def _is_one(value: Any) -> bool:
+    """Whether ``value`` is the literal 1 (the film's weight channel): not stored."""
+    return bool(value.state == dr.VarState.Literal and dr.width(value) == 1 and value[0] == 1.0)
+
+
 def _numpy(array, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
     return np.array(array, dtype=np.float64).astype(dtype).reshape(shape)
 
@@ -75,23 +80,39 @@ class FilmAccumulator:
     def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
         if len(values) != self.channels:
             raise McrtError(f"the film expects {self.channels} channels, got {len(values)}")
-        finite = _finite(values)
-        kept = [dr.select(finite, v, 0.0) for v in values]
-        bad = dr.select(finite, mi.UInt32(0), mi.UInt32(1))
         if group == 1 and self.box:  # one sample per pixel and lane: fold in while tracing
-            terms: list[Any] = [mi.Float64(v) for v in kept]
-            bad_pixels: Any = bad
+            finite = _finite(values)
+            self._pending = ([mi.Float64(dr.select(finite, v, 0.0)) for v in values],
+                             dr.select(finite, mi.UInt32(0), mi.UInt32(1)))
+            return
+        # Store the pass's raw samples (the sampler's next state is evaluated with
+        # them), except the weight channel (the literal 1) and, for a box filter,
+        # the positions; then one kernel per pass sums each pixel's samples in order.
+        ones = [_is_one(v) for v in values]
+        stored = [v for v, one in zip(values, ones) if not one]
+        position = None if self.box else mi.Point2f(samples.position)
+        dr.eval(stored, position)
+
+        def sample(lane: Any, active: Any = True) -> tuple[Any, list[Any]]:
+            """(finite, channels) of stored lane(s), non-finite samples zeroed."""
+            raw = iter([dr.gather(mi.Float, v, lane, active) for v in stored])
+            channels = [mi.Float(1.0) if one else next(raw) for one in ones]
+            finite = _finite(channels)
+            return finite, [dr.select(finite, c, 0.0) for c in channels]
+
+        def own(lane: Any) -> list[Any]:  # box: the channels; always: the non-finite flag
+            finite, channels = sample(lane)
+            return (channels if self.box else []) + [dr.select(finite, 0.0, 1.0)]
+
+        sums = sequential_block_sums(self.grid[0] * self.grid[1], group, own,
+                                     (self.channels if self.box else 0) + 1)
+        bad_pixels = mi.UInt32(sums[-1])
+        if self.box:
+            terms: list[Any] = sums[:-1]
         else:
-            position = mi.Point2f(samples.position)
-            dr.eval(kept, bad, position)  # the pass's samples (and the sampler's next state)
-            bad_pixels = bad if group == 1 else dr.block_sum(bad, group)
-            if self.box:
-                # float64: Dr.Jit's float32 block_sum drifts (2^14+ copies of 0.3 sum to
-                # 2e-5 relative off).
-                terms = [dr.block_sum(mi.Float64(v), group) for v in kept]
-            else:
-                terms = self._gathered(kept, position, group)
-            dr.eval(terms, bad_pixels)
+            assert position is not None
+            terms = self._gathered(sample, position, group)
+        dr.eval(terms, bad_pixels)
         self._pending = (terms, bad_pixels)
 
     def commit(self) -> None:
@@ -140,11 +161,12 @@ class FilmAccumulator:
         return self.film.develop()
 
     # -- filtered splatting -------------------------------------------------------
-    def _gathered(self, kept: list[mi.Float], position: mi.Point2f,
-                  group: int) -> list[mi.Float64]:
+    def _gathered(self, sample: Callable[[Any, Any], tuple[Any, list[Any]]],
+                  position: mi.Point2f, group: int) -> list[mi.Float64]:
         """Per block pixel: the filter-weighted sums of the samples of the pixels
         within the filter's reach, gathered (each target sums its sources in a
-        fixed order: offsets, then samples), so no two lanes ever write one value."""
+        fixed order: offsets, then samples), so no two lanes ever write one value.
+        ``sample(lane, active)`` gives a stored sample's channels."""
         rfilter = self.film.rfilter()
         w, h = self.ext
         gw, gh = self.grid
@@ -166,11 +188,12 @@ class FilmAccumulator:
                 pos = dr.gather(mi.Point2f, position, lane, inside)
                 weight = rfilter.eval(centre.x - pos.x) * rfilter.eval(centre.y - pos.y)
                 weight = dr.select(inside, weight, 0.0)
-                for c, v in enumerate(kept):
-                    out[c] = out[c] + mi.Float64(dr.gather(mi.Float, v, lane, inside) * weight)
+                _, channels = sample(lane, inside)
+                for c, value in enumerate(channels):
+                    out[c] = out[c] + mi.Float64(value * weight)
             return out
 
-        zeros = [dr.zeros(mi.Float64, w * h) for _ in kept]
+        zeros = [dr.zeros(mi.Float64, w * h) for _ in range(self.channels)]
         if group == 1:
             return contributions(mi.UInt32(0), zeros)
         state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group,

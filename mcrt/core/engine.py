@@ -217,7 +217,7 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
                 run.seconds += time.perf_counter() - start
 
             trace_pass(scene, sensor_obj, integrator, sampler, pixel, shape.spp, accumulator,
-                       shape.group, values, committed)
+                       shape.group, values, committed, advance=index + 1 < shape.passes)
             if progress is not None:
                 progress.update(1)
 
@@ -226,14 +226,19 @@ def trace_pass(scene: mi.Scene, sensor: mi.Sensor, integrator: mi.SamplingIntegr
                sampler: mi.Sampler, pixel: mi.Vector2i, spp: int, accumulator: PassSink,
                group: int,
                values: Callable[[mi.Film, CameraSamples], list[Any]] = film_values,
-               committed: Callable[[], None] | None = None) -> None:
+               committed: Callable[[], None] | None = None, advance: bool = True) -> None:
     """The step every render repeats: trace one wavefront (``sampler`` seeded for
     it, ``group`` consecutive lanes per pixel), advance the sampler, let the
     accumulator fold the samples in (one kernel with the sampler's next state),
-    and commit with interrupts held back (``committed`` runs in that block)."""
+    and commit with interrupts held back (``committed`` runs in that block).
+
+    ``advance=False`` (a render's last pass) leaves the sampler where it is, so
+    its next state is never computed nor stored (Mitsuba's samplers keep 16
+    bytes of random state per lane)."""
     samples = trace(scene, sensor, sampler, integrator, pixel, spp)
-    sampler.advance()
-    sampler.schedule_state()
+    if advance:
+        sampler.advance()
+        sampler.schedule_state()
     accumulator.add(samples, values(sensor.film(), samples), group)
     with deferred_interrupts():  # an accumulator may update its sums in place here
         accumulator.commit()

@@ -28,7 +28,9 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Sequence
+import struct
+import zlib
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -99,6 +101,48 @@ def code_thresholds() -> np.ndarray:
 ROWS_PER_CHUNK = 256
 
 
+@functools.cache
+def _float32_table() -> tuple[np.ndarray, np.ndarray] | None:
+    """Codes of float32 values in [0, 1] by the top 16 bits of their bit pattern.
+
+    For bucket ``b`` (the floats whose bits are ``b << 16 .. b << 16 | 0xFFFF``):
+    ``base[b]``, the code of its smallest value, and ``step[b]``, the smallest
+    float32 of the bucket whose code is ``base[b] + 1`` (or +inf). The code of
+    any float32 ``x`` in [0, 1] is then ``base[b] + (x >= step[b])``: exact, as
+    long as no bucket spans two thresholds, which is checked here (None if it did).
+    """
+    thresholds = code_thresholds()
+    t32 = thresholds.astype(np.float32)
+    t32 = np.where(t32.astype(np.float64) < thresholds, np.nextafter(t32, np.float32(2)), t32)
+    top = np.float32(1.0).view(np.uint32) >> 16
+    first = (np.arange(top + 1, dtype=np.uint32) << 16).view(np.float32)
+    last = (np.minimum((np.arange(top + 1, dtype=np.uint32) << 16) | 0xFFFF,
+                       np.float32(1.0).view(np.uint32))).view(np.float32)
+    base = np.searchsorted(thresholds, first.astype(np.float64), side="right")
+    if np.any(np.searchsorted(thresholds, last.astype(np.float64), side="right") > base + 1):
+        return None
+    step = np.append(t32, np.float32(np.inf))[base]
+    return base.astype(np.uint8), step
+
+
+def _encode_rows(x: np.ndarray, thresholds: np.ndarray, scale: float) -> np.ndarray:
+    """The display rule for a block of rows (any float dtype)."""
+    table = _float32_table() if x.dtype == np.float32 and scale == 1.0 else None
+    bad = ~np.all(np.isfinite(x), axis=2)
+    if table is not None:  # float32 at exposure 0: exact by the table, no float64 copy
+        x = np.clip(np.where(bad[..., None], np.float32(0), x), np.float32(0), np.float32(1))
+        bucket = (x.view(np.uint32) & 0x7FFFFFFF) >> 16  # (-0.0 is bucket 0)
+        base, step = table
+        block = base[bucket] + (x >= step[bucket]).astype(np.uint8)
+    else:
+        y = x.astype(np.float64)
+        y[bad] = 0.0
+        y = np.clip(y * scale, 0.0, 1.0)
+        block = np.searchsorted(thresholds, y, side="right").astype(np.uint8)
+    block[bad] = NONFINITE_COLOUR
+    return block
+
+
 def encode_srgb(rgb_linear, exposure: float = 0.0) -> np.ndarray:
     """Encode linear RGB to an ``(H, W, 3)`` ``uint8`` sRGB image.
 
@@ -112,14 +156,39 @@ def encode_srgb(rgb_linear, exposure: float = 0.0) -> np.ndarray:
     out = np.empty(a.shape, np.uint8)
     thresholds, scale = code_thresholds(), 2.0 ** exposure
     for top in range(0, a.shape[0], ROWS_PER_CHUNK):
-        x = a[top:top + ROWS_PER_CHUNK].astype(np.float64)
-        bad = ~np.all(np.isfinite(x), axis=2)
-        x[bad] = 0.0
-        x = np.clip(x * scale, 0.0, 1.0)
-        block = np.searchsorted(thresholds, x, side="right").astype(np.uint8)
-        block[bad] = NONFINITE_COLOUR
-        out[top:top + ROWS_PER_CHUNK] = block
+        out[top:top + ROWS_PER_CHUNK] = _encode_rows(a[top:top + ROWS_PER_CHUNK], thresholds,
+                                                      scale)
     return out
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + \
+        struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
+
+
+def _png_chunks(rgb8: np.ndarray) -> Iterator[bytes]:
+    """An 8-bit RGB image as PNG (ISO/IEC 15948): signature, IHDR, IDAT chunks
+    (rows with filter type 0, deflated at level 1 in bounded pieces), IEND."""
+    height, width = rgb8.shape[:2]
+    yield b"\x89PNG\r\n\x1a\n"
+    yield _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+    deflate = zlib.compressobj(1)  # fast: a preview, not an archive
+    rows = np.zeros((min(ROWS_PER_CHUNK, height), 1 + 3 * width), np.uint8)  # byte 0: filter 0
+    for top in range(0, height, ROWS_PER_CHUNK):
+        block = rgb8[top:top + ROWS_PER_CHUNK]
+        rows[:len(block), 1:] = block.reshape(len(block), -1)
+        data = deflate.compress(rows[:len(block)].tobytes())
+        if data:
+            yield _chunk(b"IDAT", data)
+    yield _chunk(b"IDAT", deflate.flush())
+    yield _chunk(b"IEND", b"")
+
+
+def _write_rgb8(path, rgb8: np.ndarray) -> None:
+    """Write an ``(H, W, 3)`` uint8 image as PNG to ``path`` atomically."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        for piece in _png_chunks(np.ascontiguousarray(rgb8, dtype=np.uint8)):
+            f.write(piece)
 
 
 def _save_png(path, image) -> None:
@@ -135,9 +204,7 @@ def write_png(path: str | os.PathLike, rgb_linear, exposure: float = 0.0) -> Non
     :class:`~mcrt.errors.McrtError`) when ``path`` cannot be written; a previous
     file at ``path`` is then left intact.
     """
-    from PIL import Image
-
-    _save_png(path, Image.fromarray(encode_srgb(rgb_linear, exposure), mode="RGB"))
+    _write_rgb8(path, encode_srgb(rgb_linear, exposure))
 
 
 def _font(size: int):

@@ -84,19 +84,44 @@ toward the pixel's budget (a pixel producing only NaN stops at ``max_spp``).
 
 from __future__ import annotations
 
-from .criterion import (
-    IMAGE_MEAN_QUANTILE,
-    LUMINANCE,
-    dilate,
-    error_ratio,
-    image_mean_luminance,
-    luminance_error,
-)
-from .engine import render_adaptive
-from .ladder import batch_ladder, budget_batches, pass_batch_size
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from .reconstruct import bin_samples, reconstruct, reconstruct_samples, subpixel_filter
-from .result import AdaptiveRender, PassRecord, pass_time_fit
 from .settings import PARAMETERS, PARAMETERS_BY_NAME, AdaptiveSettings, Param
+
+if TYPE_CHECKING:  # imported on first use (below): `mcrt render` without --adaptive skips them
+    from .criterion import (
+        IMAGE_MEAN_QUANTILE,
+        LUMINANCE,
+        dilate,
+        error_ratio,
+        image_mean_luminance,
+        luminance_error,
+    )
+    from .engine import render_adaptive
+    from .ladder import batch_ladder, budget_batches, pass_batch_size
+    from .result import AdaptiveRender, PassRecord, pass_time_fit
+
+#: Name -> submodule, for the names imported when first used.
+_LAZY = {
+    **dict.fromkeys(["IMAGE_MEAN_QUANTILE", "LUMINANCE", "dilate", "error_ratio",
+                     "image_mean_luminance", "luminance_error"], "criterion"),
+    "render_adaptive": "engine",
+    **dict.fromkeys(["batch_ladder", "budget_batches", "pass_batch_size"], "ladder"),
+    **dict.fromkeys(["AdaptiveRender", "PassRecord", "pass_time_fit"], "result"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module = importlib.import_module(f"{__name__}.{_LAZY[name]}")
+    for other, home in _LAZY.items():  # bind the module's names once
+        if home == _LAZY[name]:
+            globals()[other] = getattr(module, other)
+    return globals()[name]
+
 
 __all__ = [
     "IMAGE_MEAN_QUANTILE",
