@@ -3,7 +3,9 @@
 ``mcrt.core.render.render_film`` and ``mi.render`` of the same scene (the Cornell
 box), sampler and spp, each warmed up once, then ``--rounds`` interleaved runs;
 wall time with ``dr.sync_thread()`` and the image copied to numpy in both. Prints
-the median times and the ratio of medians (engine / mi.render). This separates
+the median times and the ratio of medians (engine / mi.render), and, as a floor
+for any design that splits a render into passes, ``mi.render`` itself called
+once per pass of the engine's pass shape (same number of samples). This separates
 the engine's cost from the command line's fixed costs (imports, plan, outputs),
 which ``benchmarks/render_overhead.py`` measures end to end.
 
@@ -24,6 +26,7 @@ import numpy as np
 mi.set_variant("llvm_ad_rgb")
 
 import mcrt  # noqa: E402,F401  (registers the samplers)
+from mcrt.core.engine import pass_shape  # noqa: E402
 from mcrt.core.render import render_film  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
 
@@ -44,7 +47,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--samplers", nargs="+", default=["jittered", "independent"])
     args = parser.parse_args()
-    print("| film | sampler | engine [s] | mi.render [s] | ratio |\n|---|---|---|---|---|")
+    print("| film | sampler | engine [s] | mi.render [s] | ratio | mi.render in the engine's "
+          "passes [s] | ratio to mi.render |\n|---|---|---|---|---|---|---|")
     for res in args.res:
         for name in args.samplers:
             scene = mi.load_file(str(CORNELL), res=str(res), sampler=name)
@@ -55,14 +59,22 @@ def main() -> None:
             def theirs() -> None:
                 np.array(mi.render(scene, spp=args.spp))
 
-            ours()
-            theirs()
-            a, b = [], []
+            shape = pass_shape(res * res, args.spp)
+
+            def split() -> None:  # Mitsuba itself, one call per pass of the engine's shape
+                for index in range(shape.passes):
+                    np.array(mi.render(scene, spp=shape.group, seed=index))
+
+            for fn in (ours, theirs, split):
+                fn()
+            a, b, c = [], [], []
             for _ in range(args.rounds):
                 a.append(timed(ours))
                 b.append(timed(theirs))
-            ma, mb = statistics.median(a), statistics.median(b)
-            print(f"| {res}^2 | {name} | {ma:.3f} | {mb:.3f} | {ma / mb:.3f} |", flush=True)
+                c.append(timed(split))
+            ma, mb, mc = (statistics.median(x) for x in (a, b, c))
+            print(f"| {res}^2 | {name} | {ma:.3f} | {mb:.3f} | {ma / mb:.3f} | {mc:.3f} "
+                  f"({shape.passes} x {shape.group} spp) | {mc / mb:.3f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -184,22 +184,19 @@ def test_plot(good_report, monkeypatch, error):
 
 @pytest.mark.parametrize("error", ERRORS, ids=["ctrl-c", "disk-full"])
 def test_png_image(tmp_path, monkeypatch, error):
-    from PIL import Image
-
+    import mcrt.io.png as png_module
     from mcrt.io import write_png
 
     path = tmp_path / "image.png"
     write_png(path, np.full((8, 8, 3), 0.5, np.float32))
     before = {path: path.read_bytes()}
-    real = Image.Image.save
+    real = png_module._png_chunks
 
-    def save(self, fp, *args, **kwargs):
-        real(self, fp, *args, **kwargs)
-        with open(fp, "r+b") as f:
-            f.truncate(10)
+    def chunks(rgb8):  # the whole file, then the failure (before the rename)
+        yield from real(rgb8)
         raise error
 
-    monkeypatch.setattr(Image.Image, "save", save)
+    monkeypatch.setattr(png_module, "_png_chunks", chunks)
     with pytest.raises((KeyboardInterrupt, McrtError)) as raised:
         write_png(path, np.zeros((8, 8, 3), np.float32))
     _check(tmp_path, before, raised, error)
@@ -253,17 +250,17 @@ def test_poisson_table_cache(tmp_path, monkeypatch):
     (the user asked to stop) but leaves neither a torn table nor a temporary file."""
     import mcrt.samplers.poisson_tables as pt
 
-    path = tmp_path / "tables.npy"
+    path = tmp_path / "tables.npz"
     good = np.arange(12, dtype=np.float32).reshape(1, 6, 2) / 12
     assert pt._write(path, good)
     before = {path: path.read_bytes()}
-    real = np.save
+    real = np.savez
 
-    def dying_save(f, array, **kwargs):
-        real(f, array[:, :3], **kwargs)
+    def dying_save(f, **arrays):
+        real(f, **arrays)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(np, "save", dying_save)
+    monkeypatch.setattr(np, "savez", dying_save)
     with pytest.raises(KeyboardInterrupt) as raised:
         pt._write(path, good * 0.5)
     _check(tmp_path, before, raised, KeyboardInterrupt())

@@ -83,13 +83,13 @@ def test_bad_configs_fail_before_rendering_with_one_line(tmp_path, capsys, chang
     assert not (tmp_path / "out" / "results.csv").exists()
 
 
-def test_a_scene_without_box_filter_is_refused(tmp_path):
-    """The reference is box-binned per pixel; a filtered film would differ from it."""
+def test_a_scene_without_box_filter_is_accepted(tmp_path):
+    """References develop with the film's own filter (issue 12): no refusal."""
     scene = tmp_path / "gaussian.xml"
     scene.write_text(CHECKERBOARD.read_text().replace('<rfilter type="box"/>',
                                                       '<rfilter type="gaussian"/>'))
-    with pytest.raises(ConfigError, match="box reconstruction filter"):
-        load_config(_config(tmp_path, GOOD.replace(str(CHECKERBOARD), str(scene))))
+    config = load_config(_config(tmp_path, GOOD.replace(str(CHECKERBOARD), str(scene))))
+    assert len(config.scenes) == 1
 
 
 def test_check_only(tmp_path, capsys):

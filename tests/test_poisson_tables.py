@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from mcrt.core import job
 from mcrt.samplers import poisson_tables as pt
 
 
@@ -222,9 +223,9 @@ def test_disk_cache_round_trip(cache, monkeypatch):
     n = 48
     a = pt.load_tables(n)
     path = pt.cache_path(n)
-    assert path.parent == cache and path.name == f"v{pt.VERSION}-n{n}-t{pt.n_tables(n)}.npy"
+    assert path.parent == cache and path.name == f"v{pt.VERSION}-n{n}-t{pt.n_tables(n)}.npz"
     assert path.is_file()
-    np.testing.assert_array_equal(np.load(path), a)
+    np.testing.assert_array_equal(_stored(path, n), a)
     assert sorted(os.listdir(cache)) == [path.name]  # no temporary files left
 
     # A new process (empty memory cache) reads the file and does not regenerate.
@@ -259,7 +260,7 @@ def test_write_is_atomic(cache, monkeypatch):
         # before it is renamed over the destination.
         assert Path(src).parent == Path(dst).parent == cache
         assert Path(src).name != Path(dst).name
-        np.load(src)
+        np.load(src)["a_tables"]
         replaced.append(Path(dst))
         real_replace(src, dst)
 
@@ -272,11 +273,10 @@ def test_write_is_atomic(cache, monkeypatch):
 def test_failed_write_leaves_nothing_behind(cache, monkeypatch):
     n = 21
 
-    def failing_save(f, *args, **kwargs):
-        f.write(b"partial")
-        raise OSError("disk full")
+    def failing_open(*args, **kwargs):
+        raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(np, "save", failing_save)
+    monkeypatch.setattr(job, "open", failing_open, raising=False)
     tables = pt.load_tables(n)  # still served
     assert tables.shape == (pt.n_tables(n), n, 2)
     assert os.listdir(cache) == []
@@ -331,17 +331,25 @@ def test_corrupt_cache_file_is_regenerated(cache, kind):
     if isinstance(bad, bytes):
         path.write_bytes(bad)
     elif isinstance(bad, str):  # "truncated": a valid file missing its last bytes
-        np.save(path, pt.generate(n, t, pt.TABLE_SEED).astype(np.float32))
+        pt._write(path, pt.generate(n, t, pt.TABLE_SEED).astype(np.float32))
         path.write_bytes(path.read_bytes()[:-100])
     else:
-        np.save(path, bad, allow_pickle=True)
+        with open(path, "wb") as f:
+            np.save(f, bad, allow_pickle=True)
 
     tables = pt.load_tables(n)
     expected = pt.generate(n, t, pt.TABLE_SEED).astype(np.float32)
     assert tables.tobytes() == expected.tobytes()
-    # The bad file was replaced by a good one.
-    assert np.load(path).tobytes() == expected.tobytes()
-    assert sorted(os.listdir(cache)) == [path.name]
+    # The bad file was set aside and replaced by a good one.
+    assert _stored(path, n).tobytes() == expected.tobytes()
+    assert sorted(os.listdir(cache)) == sorted([path.name, path.name + ".damaged"])
+
+
+def _stored(path, n):
+    """The tables in a cache file (checked like the cache does)."""
+    found = job.Checkpoint.load(path, pt._key(n))
+    assert found is not None
+    return found.arrays["tables"]
 
 
 def test_cache_path_that_is_a_directory(cache):

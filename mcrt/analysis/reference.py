@@ -39,6 +39,16 @@ Cache and resume
     a partial state is never taken for a finished one and a damaged file is
     ignored, never trusted.
 
+Reconstruction filters
+    A scene whose film filters with anything but a box gets a reference
+    developed with that filter, as its film develops a render: per pixel the
+    float64 ratio of filter-weighted sums over every sample within the filter's
+    reach, with the delta-method variance of that ratio (every weight counted;
+    see :mod:`mcrt.core.filtered`). Its arrays cover the film's crop window,
+    ``variance`` is the weighted per-sample variance and the EXR gains an
+    ``effective_count`` layer (Kish's ``(sum w)^2 / sum w^2``). Box films keep
+    the box-binned moments below.
+
 Standard error
     ``standard_error = sqrt(variance / n)`` assumes independent samples, which
     holds exactly for the default ``independent`` sampler. For stratified or
@@ -59,6 +69,8 @@ from typing import Any
 import numpy as np
 
 from ..cache import cache_dir
+from ..core.atomic import check_free_space, remove_stale_temporaries
+from ..core.filtered import SUMS, FilteredStats
 from ..core.job import Checkpoint, Interrupted, Job, content_key, run_job, scene_digest, set_aside
 from ..core.progress import Progress
 from ..core.render import StatsRender, render_stats
@@ -68,7 +80,7 @@ from ..core.trace import film_grid_size
 from ..errors import McrtError, SamplerError
 from ..render.plan import plan_scene
 from ..samplers._hash import hash_keys_int
-from .pass_plan import LANE_BUDGET, PassPlan, plan_passes
+from .pass_plan import DEFAULT_PASS_SPP, LANE_BUDGET, PassPlan, plan_passes
 
 log = logging.getLogger("mcrt.reference")
 
@@ -82,6 +94,9 @@ CACHE_FORMAT = 1
 #: Cache subdirectory.
 CACHE_NAME = "reference"
 
+#: Bytes per pixel of a saved reference state (count, mean, M2, nonfinite).
+STATE_BYTES_PER_PIXEL = 8 + 24 + 24 + 8
+
 
 # --------------------------------------------------------------------------- keys
 
@@ -94,9 +109,10 @@ def pass_seed(seed: int, index: int) -> int:
 
 
 def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: str, seed: int,
-                plan: PassPlan) -> dict:
+                plan: PassPlan, filtered: bool = False) -> dict:
     """Everything a reference's bits depend on (see :func:`reference_key`)."""
-    return {
+    extra = {"estimator": "filtered"} if filtered else {}  # box keys stay as they were
+    return {**extra,
         "format": CACHE_FORMAT,
         "scene": scene_digest(scene_path, params),
         "params": sorted((str(k), str(v)) for k, v in (params or {}).items()),
@@ -109,9 +125,9 @@ def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: 
 
 
 def reference_key(scene_path: str | Path, params: dict[str, str] | None, sampler: str,
-                  seed: int, plan: PassPlan) -> str:
+                  seed: int, plan: PassPlan, filtered: bool = False) -> str:
     """Cache key: :func:`~mcrt.core.job.content_key` of :func:`key_payload`."""
-    return content_key(key_payload(scene_path, params, sampler, seed, plan))
+    return content_key(key_payload(scene_path, params, sampler, seed, plan, filtered))
 
 
 # --------------------------------------------------------------------------- result
@@ -128,7 +144,7 @@ class Reference:
     ``resumed_passes`` how many passes a partial state provided.
     """
 
-    stats: PixelStats
+    stats: PixelStats | FilteredStats  # FilteredStats: developed with the film's filter
     spp: int
     sampler: str
     seed: int
@@ -175,19 +191,23 @@ def cache_paths(key: str) -> tuple[Path, Path]:
     return directory / f"{key}.npz", directory / f"{key}.partial.npz"
 
 
-def save_state(path: Path, key: str, stats: PixelStats, passes_done: int, passes: int,
-               seconds: float, complete: bool) -> None:
+def save_state(path: Path, key: str, stats: PixelStats | FilteredStats, passes_done: int,
+               passes: int, seconds: float, complete: bool) -> None:
     """Write a reference's running state to ``path`` (a :class:`Checkpoint`)."""
+    if isinstance(stats, FilteredStats):
+        arrays = stats.arrays()
+    else:
+        arrays = {"count": np.asarray(stats.count, np.int64),
+                  "mean": np.asarray(stats.mean, np.float64),
+                  "m2": np.asarray(stats.m2, np.float64),
+                  "nonfinite": np.asarray(stats.nonfinite, np.int64)}
     Checkpoint({"complete": bool(complete), "passes_done": int(passes_done),
-                "passes": int(passes), "seconds": float(seconds)},
-               {"count": np.asarray(stats.count, np.int64),
-                "mean": np.asarray(stats.mean, np.float64),
-                "m2": np.asarray(stats.m2, np.float64),
-                "nonfinite": np.asarray(stats.nonfinite, np.int64)}).save(path, key)
+                "passes": int(passes), "seconds": float(seconds)}, arrays).save(path, key)
 
 
 def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
-               complete: bool) -> tuple[PixelStats, int, float] | None:
+               complete: bool, filtered: bool = False
+               ) -> tuple[PixelStats | FilteredStats, int, float] | None:
     """Read a state written by :func:`save_state`; ``(stats, passes_done, seconds)``
     if it is an intact state of ``key`` in the expected role, else None.
 
@@ -206,17 +226,26 @@ def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
     h, w = shape
     expected = {"count": ((h, w), np.int64), "nonfinite": ((h, w), np.int64),
                 "mean": ((h, w, 3), np.float64), "m2": ((h, w, 3), np.float64)}
+    if filtered:
+        expected = {"count": ((h, w), np.int64), "nonfinite": ((h, w), np.int64),
+                    **{f"sum_{k}": ((h, w, c), np.float64) for k, c in SUMS}}
     ok = (meta.get("passes") == plan.passes and isinstance(done, int)
           and (done == plan.passes if complete else 0 < done < plan.passes)
           and all(name in arrays and arrays[name].shape == shape_
                   and arrays[name].dtype == dtype for name, (shape_, dtype) in expected.items()))
     if ok:
+        moments = ["sum_w", "sum_w2"] if filtered else ["m2"]
         ok = bool(np.all(arrays["count"] + arrays["nonfinite"] == plan.spp_before(done))
-                  and np.all(arrays["m2"] >= 0) and np.isfinite(arrays["mean"]).all())
+                  and all(np.all(arrays[m] >= 0) for m in moments)
+                  and all(np.isfinite(arrays[m]).all() for m in expected))
     if not ok:
         set_aside(path, "not a consistent state of this reference")
         return None
-    stats = PixelStats(**{name: arrays[name] for name in expected})
+    stats: PixelStats | FilteredStats
+    if filtered:
+        stats = FilteredStats.from_arrays(arrays)
+    else:
+        stats = PixelStats(**{name: arrays[name] for name in expected})
     return stats, done, float(meta.get("seconds", 0.0))
 
 
@@ -228,7 +257,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   seed: int = 0, spp_per_pass: int | None = None,
                   progress: bool = False, *, cache: bool = True,
                   on_pass: Callable[[int, int], None] | None = None,
-                  executor: Any = None) -> Reference:
+                  executor: Any = None,
+                  before_work: Callable[[int, int], None] | None = None) -> Reference:
     """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``.
 
     A :class:`~mcrt.core.job.Job` whose tasks are the passes (each a pure
@@ -253,14 +283,25 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     film = scene.sensors()[0].film()
     grid = film_grid_size(film)
     width, height = int(grid[0]), int(grid[1])
-    if not film.rfilter().is_box_filter():
-        log.info("the reference is box-binned (a sample counts for the pixel it was drawn in); "
-                 "this scene's film filters with %s", film.rfilter().class_name())
+    filtered = not film.rfilter().is_box_filter()
+    if filtered:
+        log.info("the reference is developed with the film's %s filter (float64; standard "
+                 "errors count every filter weight)", film.rfilter().class_name())
+    if spp_per_pass is None:
+        spp_per_pass = memory_pass_spp(width * height, spp)
     plan = plan_passes(sampler, spp, width * height, spp_per_pass)
-    key = reference_key(scene_path, params, sampler, seed, plan)
+    key = reference_key(scene_path, params, sampler, seed, plan, filtered)
+    if filtered:  # the developed pixels: the crop window
+        width, height = (int(v) for v in film.crop_size())
     finished_path, partial_path = cache_paths(key)
+    if cache:  # room for the partial and the finished state (and a temporary copy)
+        remove_stale_temporaries(finished_path.parent)
+        check_free_space(finished_path.parent, 3 * STATE_BYTES_PER_PIXEL * width * height,
+                         "the reference cache files")
+    if before_work is not None:  # e.g. the command's own checks (free space for its output)
+        before_work(width, height)
 
-    def result(stats: PixelStats, seconds: float, cached: bool = False,
+    def result(stats: PixelStats | FilteredStats, seconds: float, cached: bool = False,
                resumed: int = 0) -> Reference:
         return Reference(stats=stats, spp=plan.spp, sampler=sampler, seed=seed,
                          passes=plan.passes, seconds=seconds, key=key, cached=cached,
@@ -269,10 +310,12 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     start: StatsRender | None = None
     done, seconds = 0, 0.0
     if cache:
-        found = load_state(finished_path, key, plan, (height, width), complete=True)
+        found = load_state(finished_path, key, plan, (height, width), complete=True,
+                           filtered=filtered)
         if found is not None:
             return result(found[0], found[2], cached=True)
-        found = load_state(partial_path, key, plan, (height, width), complete=False)
+        found = load_state(partial_path, key, plan, (height, width), complete=False,
+                           filtered=filtered)
         if found is not None:
             start = StatsRender(found[0], 0, 0, 0.0)
             done, seconds = found[1], found[2]
@@ -283,7 +326,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
         pass_sampler = make_sampler(sampler, count)
         subframes, move = planned.schedule(pass_sampler, count, pass_seed(seed, index))
         part = render_stats(scene, pass_sampler, seed=pass_seed(seed, index),
-                            max_lanes=LANE_BUDGET, passes=subframes, on_pass=move)
+                            max_lanes=LANE_BUDGET, passes=subframes, on_pass=move,
+                            filtered=filtered)
         if part.spp != count:  # the plan only uses counts the sampler keeps
             raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
                                f"{index}, planned {count}")
@@ -315,12 +359,38 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     return result(merged.stats, seconds + merged.seconds, resumed=done)
 
 
+def memory_pass_spp(pixels: int, spp: int) -> int | None:
+    """Samples per pixel of a pass that fits the memory available, when the
+    default pass (:func:`plan_passes`) would not; None when it fits (or no limit
+    is known). A one-line :class:`McrtError` if even 1 sample per pixel cannot."""
+    from ..core.memory import STATS_BYTES_PER_LANE, moments_bytes, require_memory
+
+    budget = require_memory(pixels, moments_bytes(pixels), "this reference",
+                            STATS_BYTES_PER_LANE)
+    default = min(spp, DEFAULT_PASS_SPP, max(1, LANE_BUDGET // max(1, pixels)))
+    if budget is None or budget >= pixels * default:
+        return None
+    fitting = max(1, budget // pixels)
+    log.info("passes of %d samples per pixel fit in the memory available (%d lanes of about "
+             "%d bytes); the default %d would not", fitting, budget, STATS_BYTES_PER_LANE,
+             default)
+    return fitting
+
+
 def _merge(merged: StatsRender | None, part: StatsRender) -> StatsRender:
-    """Fold one pass into the running total (Chan's merge; seconds add up)."""
+    """Fold one pass into the running total (Chan's merge, or the sums of
+    filtered statistics added; seconds add up)."""
     if merged is None:
         return part
-    return StatsRender(merged.stats.merge(part.stats), part.spp, part.passes,
-                       merged.seconds + part.seconds)
+    total, more = merged.stats, part.stats
+    stats: PixelStats | FilteredStats
+    if isinstance(total, FilteredStats) and isinstance(more, FilteredStats):
+        stats = total.merge(more)
+    elif isinstance(total, PixelStats) and isinstance(more, PixelStats):
+        stats = total.merge(more)
+    else:
+        raise McrtError("cannot merge box-binned and filtered reference passes")
+    return StatsRender(stats, part.spp, part.passes, merged.seconds + part.seconds)
 
 
 class _StateSaver:
@@ -358,6 +428,8 @@ def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
               "variance": ref.variance.astype(np.float32),
               "stderr": ref.standard_error.astype(np.float32),
               "count": ref.stats.count.astype(np.float32)}
+    if isinstance(ref.stats, FilteredStats):
+        layers["effective_count"] = ref.stats.effective_count.astype(np.float32)
     if ref.stats.nonfinite.any():
         layers["nonfinite"] = ref.stats.nonfinite.astype(np.float32)
     return layers

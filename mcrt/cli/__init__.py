@@ -112,15 +112,24 @@ def main(argv: list[str] | None = None) -> int:
     # full parser would (same prog, usage and messages).
     args = build_parser(None if command is None else [command]).parse_args(argv)
     _configure_logging(args.quiet)
+    from ..core.engine import termination_as_interrupt
+
     try:
-        _use_variant(args.variant)
-        return int(args.run(args) or 0)
+        with termination_as_interrupt():  # SIGTERM/SIGHUP: what Ctrl-C does
+            _use_variant(args.variant)
+            return int(args.run(args) or 0)
     except McrtError as error:
         print(f"mcrt: error: {_one_line(error)}", file=sys.stderr)
         return 2
     except OSError as error:  # an I/O failure no check foresaw: still one line
         where = f": {error.filename}" if error.filename else ""
         print(f"mcrt: error: {error.strerror or error}{where}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        from ..core.memory import describe
+
+        print(f"mcrt: error: out of memory ({describe()}); use a smaller image or raise the "
+              f"limit", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("mcrt: interrupted", file=sys.stderr)

@@ -6,7 +6,7 @@ import argparse
 import os
 from pathlib import Path
 
-from ..core.atomic import ensure_writable_dir
+from ..core.atomic import check_free_space, ensure_writable_dir, remove_stale_temporaries
 from ..errors import McrtError
 
 
@@ -53,3 +53,35 @@ def check_output_files(*paths: Path) -> None:
                 raise McrtError(f"cannot overwrite {path}")
         except OSError as error:  # e.g. a file name too long for the file system
             raise McrtError(f"cannot write {path}: {error.strerror}") from None
+
+
+def checkpoint_interval() -> float | None:
+    """Seconds between the checkpoints of a running render: ``$MCRT_CHECKPOINT_SECONDS``
+    (0: after every pass), by default paced to cost under 2% of the render time."""
+    text = os.environ.get("MCRT_CHECKPOINT_SECONDS", "").strip()
+    if not text:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise McrtError(f"MCRT_CHECKPOINT_SECONDS must be a number of seconds, got {text!r}")
+    if not value >= 0:
+        raise McrtError(f"MCRT_CHECKPOINT_SECONDS must be >= 0, got {text!r}")
+    return value
+
+
+#: Bytes the plots, tables and pages of `pattern`, `integrate` and `demo` need
+#: at most besides their images (generous: a few PNG plots, a CSV, a page).
+PLOTS_BYTES = 16 << 20
+
+
+def require_space(directory: Path, needed: int, what: str = "the outputs") -> None:
+    """Before any work: remove temporaries of killed writers in ``directory``,
+    then refuse to start unless ``needed`` bytes are free there (one line)."""
+    remove_stale_temporaries(directory)
+    check_free_space(directory, needed, what)
+
+
+def image_bytes(pixels: int, channels: int = 4) -> int:
+    """Upper bound of an image file's size: float32 channels, uncompressed."""
+    return pixels * channels * 4

@@ -24,7 +24,9 @@ from ..analysis.study import (
     load_config,
     run_study,
 )
+from ..core.atomic import remedy
 from ..errors import McrtError
+from . import _common
 from ._common import check_output_files, ensure_writable_dir
 
 log = logging.getLogger("mcrt.compare")
@@ -66,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else Path("out") / "compare" / config.name
     ensure_writable_dir(out)
     check_output_files(*report_files(out, [s.name for s in config.scenes]).values())
+    _check_space(config, out)
 
     state = StudyState.open(out, config, restart=args.restart)
     if state.cells:
@@ -80,7 +83,13 @@ def run(args: argparse.Namespace) -> int:
             raise McrtError(f"{error} ({len(state.cells)} finished cells are saved in "
                             f"{state.directory}; the same command resumes)") from None
         raise
-    files = write_report(result, out)
+    try:
+        files = write_report(result, out)
+    except (McrtError, OSError) as error:
+        kept = (f"; the {len(state.cells)} measured cells are kept in {state.directory}: "
+                f"{remedy(error)} and run the same command again to write the report without "
+                f"measuring again") if state.cells and state.writable else ""
+        raise McrtError(f"{error}{kept}") from None
 
     for scene in config.scenes:
         print(f"{scene.name}: log-log slope of MSE vs spp and vs time; best efficiency "
@@ -96,6 +105,27 @@ def run(args: argparse.Namespace) -> int:
     print(f"study took {result.seconds:.1f} s{resumed}; wrote {files['report']} "
           f"(and results.csv, results.json, plots in {out})")
     return 0
+
+
+def _check_space(config, out: Path) -> None:
+    """Room for the report (plots, tables, per-scene image sheets), the resume
+    state's images (three float32 arrays per scene and sampler) and the
+    references' cache files, before any cell is measured."""
+    from ..analysis.reference import STATE_BYTES_PER_PIXEL, cache_paths
+    from ..core.atomic import check_free_space
+    from ..core.trace import film_grid_size
+    from ..render.plan import plan_scene
+
+    pixels = []
+    for spec in config.scenes:  # loaded (and checked) already by load_config
+        grid = film_grid_size(plan_scene(spec.path, spec.params).scene.sensors()[0].film())
+        pixels.append(int(grid[0]) * int(grid[1]))
+    samplers = len(config.samplers)
+    report = sum(p * (samplers * 3 * 4 * 2 + (samplers + 1) * 4 * 3) for p in pixels)
+    _common.require_space(out, report + _common.PLOTS_BYTES, "the report and its resume state")
+    cache = cache_paths("x")[0].parent
+    check_free_space(cache, sum(3 * STATE_BYTES_PER_PIXEL * p for p in pixels),
+                     "the reference cache files")
 
 
 def _write_partial(result: StudyResult, args: argparse.Namespace, out: Path) -> int:

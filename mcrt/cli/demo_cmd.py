@@ -14,6 +14,7 @@ from ..core.sampling import check_sampler_name, make_sampler
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
 from ..render.plan import plan_scene
+from . import _common
 from ._common import ensure_writable_dir, positive_int
 
 log = logging.getLogger("mcrt.demo")
@@ -60,6 +61,11 @@ def run(args: argparse.Namespace) -> int:
     out = ensure_writable_dir(Path(args.output))
     # All loading errors first. The shipped demo scenes are static: no sub-frames.
     scenes = {path.stem: plan_scene(path).scene for path in paths}
+    pixels = sum(int(s.sensors()[0].film().size()[0]) * int(s.sensors()[0].film().size()[1])
+                 for s in scenes.values())
+    # Per scene: the reference and each sampler's EXR (RGB) and PNG, and the contact sheet.
+    _common.require_space(out, _common.PLOTS_BYTES + pixels * (len(samplers) + 1)
+                          * (_common.image_bytes(1, 3) + 2 * 4), "the images")
 
     rows = []
     for stem, scene in scenes.items():

@@ -11,6 +11,7 @@ from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_c
 from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
+from . import _common
 from ._common import ensure_writable_dir, non_negative_int, positive_int
 
 DEFAULT_SAMPLERS = ("independent", "jittered", "poisson_disk")
@@ -78,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         raise McrtError(f"--trials: between 2 and {MAX_TRIALS}, got {args.trials}")
     counts = sample_counts(args.min_n, args.max_n)
     out = ensure_writable_dir(Path(args.output or f"out/integrate_{args.integrand}"))
+    _common.require_space(out, _common.PLOTS_BYTES, "the plots")
     integrand = INTEGRANDS[args.integrand]
 
     bar = None

@@ -18,6 +18,7 @@ from ..errors import McrtError
 from ..samplers import ALL_SAMPLERS, BUILTIN_SAMPLERS
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets
 from ..samplers.poisson_tables import MAX_POINTS
+from . import _common
 from ._common import ensure_writable_dir, non_negative_int, positive_int
 
 log = logging.getLogger("mcrt.pattern")
@@ -115,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     if kmax > 4096:
         raise McrtError(f"--kmax: at most 4096, got {kmax}")
     out = ensure_writable_dir(Path(args.output or f"out/pattern_{name}"))
+    _common.require_space(out, _common.PLOTS_BYTES, "the plots")
 
     per_set = patterns.spectrum_work(1, n, kmax)
     spectrum_sets = max(1, min(args.pixels, SPECTRUM_BUDGET // per_set))

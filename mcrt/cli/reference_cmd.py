@@ -13,11 +13,14 @@ from ..analysis.reference import (
     reference_layers,
     reference_metadata,
 )
+from ..core.atomic import remedy
 from ..core.job import Interrupted
 from ..core.sampling import check_sampler_name
+from ..errors import McrtError
 from ..io import write_exr
 from ..render.scene import check_scene_file, parse_defines
 from ..samplers import ALL_SAMPLERS
+from . import _common
 from ._common import check_output_files, non_negative_int, output_stem, positive_int
 
 
@@ -66,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
                             seed=args.seed, spp_per_pass=args.spp_per_pass,
-                            progress=not args.quiet, cache=not args.no_cache)
+                            progress=not args.quiet, cache=not args.no_cache,
+                            before_work=lambda w, h: _before_work(out, w * h))
     except Interrupted as stop:
         part = stop.partial
         meta = {**reference_metadata(part, args.scene, params), "partial": 1,
@@ -77,7 +81,11 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_cache:
             print("run the same command again to resume")
         return 130
-    write_exr(out, reference_layers(ref), reference_metadata(ref, args.scene, params))
+    try:
+        write_exr(out, reference_layers(ref), reference_metadata(ref, args.scene, params))
+    except (McrtError, OSError) as error:
+        raise McrtError(f"{error}; {_kept(ref)}: {remedy(error)} and run the same command "
+                        f"again to write it without rendering") from None
 
     height, width = ref.mean.shape[:2]
     if ref.cached:
@@ -94,3 +102,23 @@ def run(args: argparse.Namespace) -> int:
           f"max stderr {float(np.max(ref.standard_error)):.3g}")
     print(f"wrote {out}")
     return 0
+
+
+def _kept(ref) -> str:
+    """Where the finished reference is kept when its EXR cannot be written (with
+    ``--no-cache`` it is saved to the cache now, so the work is not lost)."""
+    from ..analysis.reference import cache_paths, save_state
+
+    finished = cache_paths(ref.key)[0]
+    if not finished.is_file():
+        try:
+            save_state(finished, ref.key, ref.stats, ref.passes, ref.passes, ref.seconds,
+                       complete=True)
+        except (McrtError, OSError):
+            return "the finished reference could not be kept"
+    return f"the finished reference is kept in {finished}"
+
+
+def _before_work(out: Path, pixels: int) -> None:
+    """Checks once the image size is known: room for the EXR (11 float32 layers)."""
+    _common.require_space(out.parent, _common.image_bytes(pixels, 11) + (1 << 20))

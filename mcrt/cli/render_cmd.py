@@ -18,7 +18,9 @@ from pathlib import Path
 
 from .. import __version__
 from ..cache import cache_dir
+from ..core.atomic import remedy
 from ..core.job import CheckpointStore, Interrupted, content_key, scene_digest
+from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
@@ -31,7 +33,13 @@ from ..render.plan import parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS
 from . import _adaptive_args
-from ._common import check_output_files, non_negative_int, output_stem, positive_int
+from ._common import (
+    check_output_files,
+    checkpoint_interval,
+    non_negative_int,
+    output_stem,
+    positive_int,
+)
 from .plan_cmd import add_effect_argument
 
 log = logging.getLogger("mcrt.render")
@@ -80,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     heat_path = stem.with_name(stem.name + "_spp.png")
     check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
     check_free_space(exr_path.parent, scene)
+    _check_memory(scene, adaptive_settings)
     metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
     if adaptive_settings is not None:
         metadata["plan"] = planned.plan.to_json()
@@ -102,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
-                             passes=passes, on_pass=on_pass, resume=state)
+                             passes=passes, on_pass=on_pass, resume=state,
+                             save=store.save_periodic, save_every=checkpoint_interval())
     except Interrupted as stop:
         target = stop.state.meta["settings"][0] if stop.state is not None else spp
 
@@ -114,11 +124,12 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         _write(exr_path, png_path, result, metadata)
-    except (McrtError, OSError) as error:
+    except Exception as error:  # any failure here (disk, a film mcrt misreads) keeps the render
         kept = store.save(result.checkpoint) if result.checkpoint else None
-        where = f"; the finished render is kept in {kept}: free some space and run the " \
-                f"same command again to write it without rendering" if kept else ""
-        raise McrtError(f"{error}{where}") from None
+        where = f"; the finished render is kept in {kept}: {remedy(error)} " \
+                f"and run the same command again to write it without rendering" if kept else ""
+        raise McrtError(f"cannot write the outputs: {error}{where}" if not isinstance(
+            error, (McrtError, OSError)) else f"{error}{where}") from None
     store.discard()
     height, width = result.image.shape[:2]
     print(f"sampler {name}  spp {result.spp}  {width}x{height}  passes {result.passes}  "
@@ -183,12 +194,18 @@ def _typed(text: str):
 def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -> None:
     """Write the EXR (no timings in it, so equal renders give equal files) and PNG."""
     meta = {**metadata, "spp": result.spp, "passes": result.passes,
-            "nonfinite_samples": result.nonfinite_samples}
-    layers = {"rgb": result.image}
+            "nonfinite_samples": result.nonfinite_samples,
+            "image_channels": " ".join(result.base_channels)}
+    if result.aov_count:
+        meta["aov_channels"] = " ".join(result.aovs)
+    # The film's channels under Mitsuba's own labels: R G B [A], Y [A] or X Y Z [A]
+    # unprefixed, then each AOV channel by its name (``nn.X``, ``_arg_0.R``, ...).
+    channels = {name: result.image[..., c] for c, name in enumerate(result.channels)}
+    layers = {}
     if result.nonfinite_samples:
         layers["nonfinite"] = result.nonfinite.astype("float32")
-    write_exr(exr_path, layers, meta)
-    write_png(png_path, result.rgb)
+    write_exr(exr_path, layers, meta, channels=channels)
+    write_png(png_path, result.rgb)  # linear sRGB, whatever the pixel format
 
 
 def _resume_paths(exr_path: Path, key: str) -> tuple[Path, Path]:
@@ -228,14 +245,21 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
 
     try:
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
-                                          on_pass=report, resume=state)
+                                          on_pass=report, resume=state,
+                                          save=store.save_periodic,
+                                          save_every=checkpoint_interval())
     except Interrupted as stop:
         def write_partial(partial) -> str:
             write(partial, {"partial": 1})
             return f"{exr_path}, {png_path} and {heat_path} ({partial.samples} samples)"
 
         return _interrupted(stop, store, write_partial, "adaptive passes")
-    write(result, {})
+    try:
+        write(result, {})
+    except (McrtError, OSError) as error:
+        where = (f"; the finished render is kept in {store.saved}: {remedy(error)} and run "
+                 f"the same command again to write it without rendering") if store.saved else ""
+        raise McrtError(f"{error}{where}") from None
     store.discard()
     height, width = result.image.shape[:2]
     spp = result.spp
@@ -249,6 +273,17 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     print(f"wrote {exr_path}, {png_path} and {heat_path} (sample counts, log scale "
           f"{settings.min_spp}..{settings.max_spp})")
     return 0
+
+
+def _check_memory(scene, settings) -> None:
+    """A one-line error before rendering if even the smallest pass cannot fit."""
+    width, height = (int(v) for v in film_grid_size(scene.sensors()[0].film()))
+    pixels = width * height
+    if settings is None:
+        fixed = film_bytes(pixels)
+    else:  # moments, counts, sub-pixel sums (4 channels) and their snapshot copies
+        fixed = pixels * (72 + settings.subpixels ** 2 * 40) * 3
+    require_memory(pixels, fixed, f"a {width}x{height} render")
 
 
 def render_key(scene: str, params: dict[str, str], overrides: dict[str, bool], sampler: str,

@@ -105,20 +105,20 @@ class FilmAccumulator:
             return (channels if self.box else []) + [dr.select(finite, 0.0, 1.0)]
 
         sums = sequential_block_sums(self.grid[0] * self.grid[1], group, own,
-                                     (self.channels if self.box else 0) + 1)
+                                     (self.channels if self.box else 0) + 1, evaluate=False)
         bad_pixels = mi.UInt32(sums[-1])
         if self.box:
             terms: list[Any] = sums[:-1]
         else:
             assert position is not None
             terms = self._gathered(sample, position, group)
-        dr.eval(terms, bad_pixels)
-        self._pending = (terms, bad_pixels)
+        self._pending = (terms, bad_pixels)  # summed by the kernel that adds them in (commit)
 
     def commit(self) -> None:
         """Add the pass into the sums in place: one add per element, no two lanes
         on one element (so no atomics and no second copy of the sums), in the
-        kernel that traces the pass when it has one sample per pixel."""
+        kernel that traces the pass (one sample per pixel) or that reduces each
+        pixel's stored samples (several)."""
         if self._pending is None:
             return
         terms, bad = self._pending
@@ -284,7 +284,7 @@ def block_moments(channels: list[mi.Float64], group: int
 
 def sequential_block_sums(blocks: int, size: int,
                           contributions: Callable[[mi.UInt32], list[mi.Float]],
-                          outputs: int) -> list[mi.Float64]:
+                          outputs: int, evaluate: bool = True) -> list[mi.Float64]:
     """Per block of ``size`` consecutive lanes: the float64 sums of
     ``contributions(lane)``, each block's lanes added in order in one kernel
     (the same bits whatever the thread count; many outputs, one pass)."""
@@ -297,5 +297,6 @@ def sequential_block_sums(blocks: int, size: int,
     state: Any = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float64, blocks)] * outputs),
                           lambda k, *sums: k < size, body)
     result = list(state[1:])
-    dr.eval(result)
+    if evaluate:  # else: lazy, computed by the kernel that uses the sums
+        dr.eval(result)
     return result

@@ -7,8 +7,12 @@ the file into place in one step. A crash or an exception at any point leaves
 either the previous file or the new one at ``path``, never a truncated mix, and
 the temporary file is removed when the writer fails.
 
-Temporary files are named ``.<name>.<random>.tmp`` (hidden, and without the
-image extension, so globs such as ``*.exr`` never pick up a half-written one).
+Temporary files are named ``.<name>.<pid>-<random>.tmp`` (hidden, and without
+the image extension, so globs such as ``*.exr`` never pick up a half-written
+one). A writer killed with SIGKILL cannot remove its file:
+:func:`remove_stale_temporaries` removes those whose writer is gone (its pid is
+not a live process and the file was not touched for :data:`STALE_SECONDS`), or
+that are older than :data:`ABANDONED_SECONDS` whatever their name says.
 """
 
 from __future__ import annotations
@@ -16,8 +20,11 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import secrets
+import shutil
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,8 +35,23 @@ class ImageIOError(McrtError):
     """An image could not be read or written because of the user's path or
     environment (missing directory, permission denied, disk full, not an EXR, ...).
 
-    The message is one line and names the path.
+    The message is one line and names the path; ``errno`` is the cause's
+    (``ENOSPC``, ``EROFS``, ``EACCES``, ...) when it came from an ``OSError``.
     """
+
+    errno: int | None = None
+
+
+def remedy(error: BaseException) -> str:
+    """What the user can do about a failed write, from its real cause."""
+    code = getattr(error, "errno", None)
+    if code in (errno.ENOSPC, errno.EDQUOT):
+        return "free some space"
+    if code == errno.EROFS:
+        return "make the file system writable (or write elsewhere with -o)"
+    if code in (errno.EACCES, errno.EPERM):
+        return "fix the permissions (or write elsewhere with -o)"
+    return "fix the cause"
 
 
 def _reason(exc: OSError) -> str:
@@ -55,7 +77,9 @@ def _reason(exc: OSError) -> str:
 def write_error(path: str | os.PathLike, exc: OSError | str) -> ImageIOError:
     """Build the one-line :class:`ImageIOError` for a failed write of ``path``."""
     reason = exc if isinstance(exc, str) else _reason(exc)
-    return ImageIOError(f"cannot write '{os.fspath(path)}': {reason}")
+    error = ImageIOError(f"cannot write '{os.fspath(path)}': {reason}")
+    error.errno = None if isinstance(exc, str) else exc.errno
+    return error
 
 
 def read_error(path: str | os.PathLike, exc: OSError | str) -> ImageIOError:
@@ -121,7 +145,7 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[str]
 
     tmp = None
     for _ in range(16):
-        candidate = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp")
+        candidate = os.path.join(directory, f".{name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
         try:
             # 0o666 & ~umask: the final file gets ordinary permissions (mkstemp's 0o600 would not).
             fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -185,3 +209,74 @@ def ensure_writable_dir(directory: Path) -> Path:
     except OSError as error:
         raise McrtError(f"cannot write to output directory {directory}: {error.strerror}") from None
     return directory
+
+
+#: A temporary file of a writer that is not a live process is removed once it
+#: has not been touched for this long (a writer of another machine or container
+#: sharing the directory keeps touching its file while it writes).
+STALE_SECONDS = 60.0
+
+#: A temporary file untouched for this long is abandoned, whoever wrote it.
+ABANDONED_SECONDS = 24 * 3600.0
+
+#: ``.<name>.<pid>-<8 hex>.tmp`` (ours) and ``.<name>.<8 hex>.tmp`` (older mcrt).
+_TEMPORARY = re.compile(r"^\..+\.(?:(\d+)-)?[0-9a-f]{8}\.tmp$")
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return pid < 2**22  # a process of another user (or not a pid at all)
+    return True
+
+
+def remove_stale_temporaries(directory: str | os.PathLike, now: float | None = None) -> int:
+    """Remove the temporary files of killed writers in ``directory``; returns how many.
+
+    Only files named like :func:`atomic_path`'s, and only when no live writer
+    can own them: the pid in the name is not a live process here and the file
+    has not been modified for :data:`STALE_SECONDS`, or it has not been modified
+    for :data:`ABANDONED_SECONDS`. Never raises.
+    """
+    now = time.time() if now is None else now
+    removed = 0
+    try:
+        entries = list(os.scandir(os.fspath(directory)))
+    except OSError:
+        return 0
+    for entry in entries:
+        match = _TEMPORARY.match(entry.name)
+        if match is None:
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            age = now - entry.stat(follow_symlinks=False).st_mtime
+            pid = match.group(1)
+            dead = pid is not None and not _alive(int(pid))
+            if (dead and age > STALE_SECONDS) or age > ABANDONED_SECONDS:
+                os.unlink(entry.path)
+                removed += 1
+        except OSError:
+            continue
+    return removed
+
+
+def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the outputs") -> None:
+    """Refuse to start when ``directory`` (or its nearest existing parent) has
+    less than ``needed`` bytes free: one-line :class:`McrtError`."""
+    path = Path(directory).absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    try:
+        free = shutil.disk_usage(path).free
+    except OSError:
+        return  # cannot tell: the writes will report their own failure
+    if free < needed:
+        raise McrtError(f"not enough free space in {directory}: {what} need about "
+                        f"{needed / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")

@@ -22,6 +22,7 @@ they were computed.
 from __future__ import annotations
 
 import contextlib
+import logging
 import signal
 import threading
 import time
@@ -37,8 +38,11 @@ from ..errors import McrtError
 from ..samplers._hash import hash_keys_int
 from ..samplers._stratified import split_sample
 from ..samplers.base import is_mcrt_sampler
+from .memory import BYTES_PER_LANE, KERNEL_BYTES, lane_budget
 from .progress import Progress
 from .trace import CameraSamples, film_grid_size, pixel_of_index, trace
+
+log = logging.getLogger("mcrt.engine")
 
 #: Largest wavefront (pixels x samples per pass) traced in one kernel. Passes of
 #: one sample per pixel are never split further, so a film larger than this
@@ -80,6 +84,28 @@ def pass_shape(pixels: int, spp: int, max_lanes: int | None = None,
     group = max((g for g in range(1, spp + 1) if spp % g == 0 and pixels * g <= limit),
                 default=1)
     return PassShape(pixels, spp, group)
+
+
+def fitted_shape(pixels: int, spp: int, max_lanes: int | None = None,
+                 passes: int | None = None, bytes_per_lane: int = BYTES_PER_LANE,
+                 fixed_bytes: int = 0) -> PassShape:
+    """:func:`pass_shape`, with passes made smaller only when the default ones
+    would not fit the memory available (cgroup, ``ulimit -v``, the host: see
+    :mod:`mcrt.core.memory`), with a note: such a render may differ in the last
+    bits from one made with the default passes. Never below one sample per pixel
+    per pass."""
+    shape = pass_shape(pixels, spp, max_lanes, passes)
+    if max_lanes is not None or passes is not None:
+        return shape
+    budget = lane_budget(bytes_per_lane, fixed_bytes + KERNEL_BYTES)
+    if budget is None or shape.lanes <= budget:
+        return shape
+    smaller = pass_shape(pixels, spp, max(pixels, budget))
+    if smaller.passes != shape.passes:
+        log.info("passes of %d samples per pixel (not %d) to fit the memory available; "
+                 "the image may differ in the last bits from one made with more memory",
+                 smaller.group, shape.group)
+    return smaller
 
 
 class PassSink(Protocol):

@@ -23,6 +23,7 @@ import json
 import logging
 import os
 import re
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -32,7 +33,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from ..errors import McrtError
-from .atomic import atomic_path
+from .atomic import atomic_path, remove_stale_temporaries
 
 log = logging.getLogger("mcrt")
 
@@ -150,13 +151,18 @@ class Checkpoint:
 
         A missing file gives None quietly; a file of another job (another key)
         gives None with a note and stays; a damaged one is set aside with a note.
+        Temporary files of killed writers next to it are removed first.
         """
+        remove_stale_temporaries(path.parent)
         try:
             with np.load(path, allow_pickle=False) as data:
                 header = json.loads(str(data["header"]))
                 meta_text = str(data["meta"])
                 arrays = {name[2:]: data[name] for name in data.files if name.startswith("a_")}
         except FileNotFoundError:
+            return None
+        except IsADirectoryError:
+            log.warning("%s is a directory, not a checkpoint: not used", path)
             return None
         except Exception as error:  # truncated, not an npz, bad JSON, bad CRC, ...
             set_aside(path, f"unreadable ({type(error).__name__})")
@@ -214,6 +220,53 @@ class CheckpointStore:
     def discard(self) -> None:
         for path in self.paths:
             path.unlink(missing_ok=True)
+
+    def save_periodic(self, checkpoint: Checkpoint) -> None:
+        """A checkpoint taken while the job runs: after a failure (full disk, ...)
+        the job goes on without them, with one note."""
+        if getattr(self, "periodic_off", False):
+            return
+        if self.save(checkpoint) is None:
+            self.periodic_off = True
+            log.warning("checkpoints are off for this run; an interruption loses the passes "
+                        "since the last one")
+
+
+#: Share of a job's time its checkpoints may take (:class:`CheckpointPacer`; 2% allowed).
+CHECKPOINT_BUDGET = 0.01
+
+
+class CheckpointPacer:
+    """When to write a checkpoint during a job: as often as keeps their cost
+    below :data:`CHECKPOINT_BUDGET` of the time since the last one, or every
+    ``every`` seconds if given (0: after every unit of work).
+
+    ``maybe(save, make)`` calls ``save(make())`` when one is due and times it.
+    """
+
+    def __init__(self, every: float | None = None, budget: float = CHECKPOINT_BUDGET) -> None:
+        self.every, self.budget = every, budget
+        self.last = time.perf_counter()
+        self.cost = 0.0  # seconds the last checkpoint took
+        self.spent = 0.0  # seconds all checkpoints took
+        self.count = 0
+
+    def due(self) -> bool:
+        since = time.perf_counter() - self.last
+        if self.every is not None:
+            return since >= self.every
+        return since * self.budget >= self.cost
+
+    def maybe(self, save: Callable[[Any], Any], make: Callable[[], Any]) -> bool:
+        if not self.due():
+            return False
+        start = time.perf_counter()
+        save(make())
+        self.last = time.perf_counter()
+        self.cost = self.last - start
+        self.spent += self.cost
+        self.count += 1
+        return True
 
 
 class Interrupted(KeyboardInterrupt):

@@ -12,6 +12,7 @@ bit-identically.
 
 from __future__ import annotations
 
+import functools
 import re
 import time
 from collections.abc import Callable
@@ -24,8 +25,10 @@ import numpy as np
 
 from ..errors import McrtError
 from .accumulators import FilmAccumulator, MomentsAccumulator
-from .engine import Accumulator, PassRun, grid_pixels, pass_shape, run_passes, sampling_integrator
-from .job import Checkpoint, Interrupted
+from .engine import Accumulator, PassRun, fitted_shape, grid_pixels, run_passes, sampling_integrator
+from .filtered import FilteredMomentsAccumulator, FilteredStats
+from .job import Checkpoint, CheckpointPacer, Interrupted
+from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .progress import Progress
 from .stats import PixelStats
 
@@ -42,6 +45,7 @@ class FilmRender:
     pixels: int
     nonfinite: np.ndarray  # (grid height, grid width) samples left out
     state: Callable[[], Checkpoint] | None = None  # makes the checkpoint (on demand)
+    aov_count: int = 0  # trailing channels that are the integrator's AOVs
 
     @property
     def checkpoint(self) -> Checkpoint | None:
@@ -63,15 +67,53 @@ class FilmRender:
         return self.samples / self.seconds if self.seconds > 0 else float("inf")
 
     @property
+    def base_channels(self) -> list[str]:
+        """The film's own channels (``R G B [A]``, ``Y [A]`` or ``X Y Z [A]``)."""
+        return self.channels[:len(self.channels) - self.aov_count]
+
+    @property
+    def aovs(self) -> dict[str, np.ndarray]:
+        """The integrator's AOV channels by Mitsuba's names, (H, W) each."""
+        first = len(self.channels) - self.aov_count
+        return {name: self.image[..., first + i]
+                for i, name in enumerate(self.channels[first:])}
+
+    @property
     def rgb(self) -> np.ndarray:
-        return self.image[..., :3]
+        """The image as linear sRGB (H, W, 3), whatever the film's pixel format:
+        XYZ converted back with the inverse of Mitsuba's matrix, luminance grey."""
+        return linear_srgb(self.image, self.channels)
+
+
+@functools.cache
+def srgb_to_xyz_matrix() -> np.ndarray:
+    """Mitsuba's linear sRGB -> CIE XYZ matrix (``mi.srgb_to_xyz``), float64."""
+    unit = mi.Color3f(mi.Float(1, 0, 0), mi.Float(0, 1, 0), mi.Float(0, 0, 1))
+    return np.array(mi.srgb_to_xyz(unit), dtype=np.float64)  # [row, column]
+
+
+def linear_srgb(image: np.ndarray, channels: list[str]) -> np.ndarray:
+    """Linear sRGB (H, W, 3) of a developed film whose channels are labelled
+    ``channels`` (Mitsuba's labels): ``R G B`` as they are, ``X Y Z`` through
+    the inverse of :func:`srgb_to_xyz_matrix`, a luminance ``Y`` as grey."""
+    head = channels[:3]
+    if head == ["R", "G", "B"]:
+        return image[..., :3]
+    if head == ["X", "Y", "Z"]:
+        inverse = np.linalg.inv(srgb_to_xyz_matrix())
+        return (image[..., :3].astype(np.float64) @ inverse.T).astype(image.dtype)
+    if channels[:1] == ["Y"]:
+        return np.repeat(image[..., :1], 3, axis=-1)
+    raise McrtError(f"cannot show a film with channels {', '.join(channels)} as RGB")
 
 
 @dataclass
 class StatsRender:
     """Per-pixel sample statistics of a render and how they were made."""
 
-    stats: PixelStats  # over the film's sampled pixel grid (crop window [+ border])
+    # PixelStats: box-binned over the film's sampled grid (crop window [+ border]);
+    # FilteredStats: developed with the film's filter over its crop window.
+    stats: PixelStats | FilteredStats
     spp: int
     passes: int
     seconds: float
@@ -133,7 +175,9 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
                 seed: int = 0, sensor: int = 0, progress: bool = False,
                 max_lanes: int | None = None, passes: int | None = None,
                 on_pass: Callable[[int, int], None] | None = None,
-                resume: Checkpoint | None = None) -> FilmRender:
+                resume: Checkpoint | None = None,
+                save: Callable[[Checkpoint], object] | None = None,
+                save_every: float | None = None) -> FilmRender:
     """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
 
     Returns the developed film (bit-identical across runs and thread counts),
@@ -142,12 +186,20 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     ``max_lanes`` caps the samples of one pass; ``passes`` forces the number of
     passes (it must divide the sample count); ``on_pass(index, count)`` runs
     before each pass is traced (motion-blur sub-frames). ``resume`` continues
-    from the checkpoint of an interrupted, identical render.
+    from the checkpoint of an interrupted, identical render. ``save(checkpoint)``
+    (e.g. :meth:`~mcrt.core.job.CheckpointStore.save_periodic`) receives the
+    checkpoint of the finished passes while the render runs, so that even a
+    SIGKILL keeps them: every ``save_every`` seconds (0: after every pass), by
+    default as often as keeps its cost under 2% of the render time
+    (:class:`~mcrt.core.job.CheckpointPacer`).
     """
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
-    run = PassRun(pass_shape(width * height, spp, max_lanes, passes))
     channels = film.create_block().channel_count()
+    if resume is not None and passes is None and max_lanes is None:
+        passes = int(resume.meta.get("settings", [0, 0])[1]) or None  # its own pass size
+    run = PassRun(fitted_shape(width * height, spp, max_lanes, passes,
+                               fixed_bytes=film_bytes(width * height, channels)))
     accumulator = FilmAccumulator(film, channels)
     if resume is not None:
         if resume.meta.get("settings") != [spp, run.shape.passes, seed]:
@@ -163,14 +215,25 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
         array = np.asarray(accumulator.develop().numpy(), dtype=np.float32)
         done, seconds = run.done, run.seconds
         nonfinite = np.array(accumulator.nonfinite, dtype=np.int64).reshape(height, width)
-        names = channel_names(film, array.shape[-1], sampling_integrator(scene).aov_names())
+        aovs = list(sampling_integrator(scene).aov_names())
+        names = channel_names(film, array.shape[-1], aovs)
         return FilmRender(image=array, channels=names,
                           spp=done * run.shape.group, passes=done, seconds=seconds,
                           pixels=width * height, nonfinite=nonfinite,
-                          state=lambda: checkpoint(done, seconds))
+                          state=lambda: checkpoint(done, seconds), aov_count=len(aovs))
+
+    pacer = CheckpointPacer(save_every)
+    started = run.done
+
+    def before_pass(index: int, count: int) -> None:
+        if save is not None and index > started:  # the passes before `index` are committed
+            pacer.maybe(save, lambda: checkpoint(run.done, run.seconds))
+        if on_pass is not None:
+            on_pass(index, count)
 
     try:
-        _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)
+        _run(scene, sampler, accumulator, run, seed, sensor, progress,
+             before_pass if save is not None else on_pass)
     except KeyboardInterrupt:
         partial = result()
         raise Interrupted(partial if run.done else None, run.done, run.shape.passes,
@@ -181,17 +244,24 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
 def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, seed: int = 0,
                  sensor: int = 0, progress: bool = False, max_lanes: int | None = None,
                  passes: int | None = None,
-                 on_pass: Callable[[int, int], None] | None = None) -> StatsRender:
+                 on_pass: Callable[[int, int], None] | None = None,
+                 filtered: bool = False) -> StatsRender:
     """Render ``scene`` and return exact per-pixel sample moments (float64).
 
     The pixel grid is the film's sampled grid; a sample belongs to the pixel it
     was drawn in (box filter), whatever the scene's reconstruction filter.
-    ``max_lanes``, ``passes`` and ``on_pass`` as in :func:`render_film`.
+    With ``filtered`` and a film whose filter is not a box, the statistics are
+    instead :class:`~mcrt.core.filtered.FilteredStats` of the film's developed
+    pixels (its own filter, float64). ``max_lanes``, ``passes`` and
+    ``on_pass`` as in :func:`render_film`.
     """
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
-    run = PassRun(pass_shape(width * height, spp, max_lanes, passes))
-    accumulator = MomentsAccumulator(film)
+    run = PassRun(fitted_shape(width * height, spp, max_lanes, passes, STATS_BYTES_PER_LANE,
+                               moments_bytes(width * height)))
+    accumulator: MomentsAccumulator | FilteredMomentsAccumulator = MomentsAccumulator(film)
+    if filtered and not film.rfilter().is_box_filter():
+        accumulator = FilteredMomentsAccumulator(film)
     start = time.perf_counter()
     _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)
     dr.sync_thread()
@@ -199,4 +269,5 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
                        seconds=time.perf_counter() - start)
 
 
-__all__ = ["FilmRender", "StatsRender", "channel_names", "render_film", "render_stats"]
+__all__ = ["FilmRender", "StatsRender", "channel_names", "linear_srgb", "render_film",
+           "render_stats", "srgb_to_xyz_matrix"]

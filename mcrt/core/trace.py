@@ -66,6 +66,35 @@ def to_rgb(value: Any, wavelengths: Any, active: Any = True) -> mi.Color3f:
     return mi.Color3f(value)
 
 
+def is_differentiable(integrator: mi.Integrator) -> bool:
+    """Whether ``integrator`` is one of Mitsuba's Python differentiable
+    integrators (``prb``, ``prb_basic``, ``direct_projective``, ``prbvolpath``,
+    ...), whose ``sample()`` takes an AD mode and extra state."""
+    # Their Python base class can be loaded under two module names; its C++ base is one.
+    return isinstance(integrator, mi.CppADIntegrator)
+
+
+def integrator_sample(integrator: mi.SamplingIntegrator, scene: mi.Scene, sampler: mi.Sampler,
+                      ray: mi.RayDifferential3f, medium: Any = None,
+                      active: Any = True) -> tuple[Any, Any, list[Any]]:
+    """``(spectrum, valid, aovs)`` of one sample of ``integrator`` along ``ray``.
+
+    Mitsuba's differentiable integrators are driven the way their own
+    ``render()`` drives them: primal mode, no adjoint, no incoming state,
+    derivatives suspended, and no sensor medium (they do not support one).
+    """
+    if is_differentiable(integrator):
+        differentiable: Any = integrator  # a Python class: its sample() is not the stub's
+        with dr.suspend_grad():
+            result: Any = differentiable.sample(
+                mode=dr.ADMode.Primal, scene=scene, sampler=sampler, ray=ray,
+                depth=mi.UInt32(0), δL=None, δaovs=None, state_in=None,
+                active=mi.Bool(active))
+        return result[0], result[1], list(result[2])
+    spec, valid, aovs = integrator.sample(scene, sampler, ray, medium, active)
+    return spec, valid, list(aovs)
+
+
 def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
           integrator: mi.SamplingIntegrator, pixel: mi.Vector2i, spp: int,
           active: Any = True) -> CameraSamples:
@@ -101,7 +130,8 @@ def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
         scale_factor: Any = dr.rsqrt(float(spp))
         ray.scale_differential(scale_factor)
 
-    spec, valid, aovs = integrator.sample(scene, sampler, ray, sensor.get_medium(), active)
+    spec, valid, aovs = integrator_sample(integrator, scene, sampler, ray, sensor.get_medium(),
+                                          active)
     return CameraSamples(pixel=pixel, position=position,
                          rgb=to_rgb(ray_weight * spec, ray.wavelengths, active),
                          valid=mi.Bool(valid),

@@ -97,6 +97,19 @@ def _layer_channels(name: str, array) -> list[tuple[str, np.ndarray]]:
             for s, p in zip(suffixes, planes)]
 
 
+def _raw_channel(name: str, plane) -> np.ndarray:
+    """One channel given by its full name: a contiguous float32 (H, W) plane."""
+    if not isinstance(name, str) or not name or name.startswith(".") or name.endswith("."):
+        raise ValueError(f"EXR channel names must be non-empty and not start or end with "
+                         f"'.', got {name!r}")
+    a = np.asarray(plane)
+    if a.ndim != 2 or not np.issubdtype(a.dtype, np.number) \
+            or np.issubdtype(a.dtype, np.complexfloating):
+        raise ValueError(f"EXR channel {name!r} must be a real (H, W) array, got "
+                         f"{a.shape} {a.dtype}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
 def _header_value(key, value):
     """Convert one metadata value to what the OpenEXR bindings store exactly."""
     if not isinstance(key, str) or not key:
@@ -129,11 +142,15 @@ def _metadata_value(value):
 
 
 def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
-              metadata: Mapping[str, str | int | float] | None = None) -> None:
+              metadata: Mapping[str, str | int | float] | None = None,
+              channels: Mapping[str, np.ndarray] | None = None) -> None:
     """Write ``layers`` (and ``metadata``) to ``path`` as a float32 EXR, atomically.
 
     See the module docstring for the channel naming and metadata types. All
-    layers must share the same height and width.
+    layers must share the same height and width. ``channels`` adds (H, W)
+    planes under exactly the given channel names (a film's own labels, such as
+    ``Y``, ``X Y Z`` or an AOV integrator's ``nn.X``; dots allowed), written
+    before the layers; a name given twice is an error.
 
     Raises :class:`ValueError` / :class:`TypeError` for malformed layers or
     metadata (programming errors) and :class:`~mcrt.io.atomic.ImageIOError`
@@ -143,18 +160,22 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
     """
     import OpenEXR
 
-    if not layers:
+    if not layers and not channels:
         raise ValueError("write_exr needs at least one layer")
-    channels: dict[str, np.ndarray] = {}
+    planes: dict[str, np.ndarray] = {}
     shape: tuple[int, ...] | None = None
-    for name, array in layers.items():
-        for channel, plane in _layer_channels(name, array):
-            if shape is None:
-                shape = plane.shape
-            elif plane.shape != shape:
-                raise ValueError(f"EXR layers must share one (H, W): layer {name!r} is "
-                                 f"{plane.shape}, expected {shape}")
-            channels[channel] = plane
+    pairs = [(c, c, _raw_channel(c, p)) for c, p in (channels or {}).items()]
+    pairs += [(name, c, p) for name, array in layers.items()
+              for c, p in _layer_channels(name, array)]
+    for name, channel, plane in pairs:
+        if shape is None:
+            shape = plane.shape
+        elif plane.shape != shape:
+            raise ValueError(f"EXR layers must share one (H, W): layer {name!r} is "
+                             f"{plane.shape}, expected {shape}")
+        if channel in planes:
+            raise ValueError(f"EXR channel {channel!r} is given twice")
+        planes[channel] = plane
     if shape is None or 0 in shape:
         raise ValueError(f"cannot write an empty image of shape {shape}")
 
@@ -162,7 +183,7 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
     for key, value in (metadata or {}).items():
         header[key] = _header_value(key, value)
 
-    exr = OpenEXR.File(header, channels)
+    exr = OpenEXR.File(header, planes)
     with atomic_path(path) as tmp:
         try:
             exr.write(tmp)

@@ -144,7 +144,9 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """One sample of the nested integrator (adaptivity lives in :meth:`render`)."""
-        return self.nested.sample(scene, sampler, ray, medium, active)
+        from ..core.trace import integrator_sample
+
+        return integrator_sample(self.nested, scene, sampler, ray, medium, active)
 
     def aov_names(self) -> list[str]:
         return []

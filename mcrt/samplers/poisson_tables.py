@@ -90,12 +90,14 @@ bits on every run and machine (for a given numpy random stream; numpy keeps
 ``Generator`` streams stable in practice but does not promise it across
 versions, which is harmless: a cached table stays valid). :func:`load_tables`
 uses ``seed = TABLE_SEED`` and caches the float32 tables in memory and in
-``<cache>/poisson/v{VERSION}-n{n}-t{T}.npy``, where ``<cache>`` is
+``<cache>/poisson/v{VERSION}-n{n}-t{T}.npz`` (a :class:`mcrt.core.job.Checkpoint`:
+the table's key and a checksum of its content), where ``<cache>`` is
 ``$MCRT_CACHE_DIR`` if set and non-empty, else ``$XDG_CACHE_HOME/mcrt`` or
 ``~/.cache/mcrt``. Bump :data:`VERSION` whenever the output changes, so stale
 files are never reused. Files are written atomically (temporary file in the same
-directory, then ``os.replace``); unreadable, corrupt or wrong files (checked:
-shape, dtype, range and spacing) are regenerated and replaced, and an unwritable
+directory, then ``os.replace``); unreadable, damaged or wrong files (checked:
+key, checksum, shape, dtype, range and spacing) are set aside as ``*.damaged``
+with a note, regenerated and replaced, and an unwritable
 cache directory only means the tables are not stored.
 
 References
@@ -532,7 +534,12 @@ def cache_dir() -> Path:
 
 def cache_path(n: int) -> Path:
     """Cache file of the tables for ``n`` points (includes :data:`VERSION` and ``T``)."""
-    return cache_dir() / f"v{VERSION}-n{n}-t{n_tables(n)}.npy"
+    return cache_dir() / f"v{VERSION}-n{n}-t{n_tables(n)}.npz"
+
+
+def _key(n: int) -> str:
+    """What a cached table belongs to (checked on load with the checksum)."""
+    return f"poisson-v{VERSION}-n{n}-t{n_tables(n)}-seed{TABLE_SEED}"
 
 
 def clear_memory_cache() -> None:
@@ -553,25 +560,31 @@ def _valid(tables: object, n: int) -> bool:
 
 
 def _read(path: Path, n: int) -> np.ndarray | None:
+    """The cached tables at ``path`` if intact (key, checksum) and valid, else
+    None; a damaged or invalid file is set aside with a note."""
+    from ..core.job import Checkpoint, set_aside  # lazy: this module also loads standalone
+
     try:
-        tables = np.load(path, allow_pickle=False)
-    except Exception:  # missing, unreadable, truncated, not an .npy file, ...
+        found = Checkpoint.load(path, _key(n))
+    except Exception:  # e.g. the path is a directory
         return None
-    return tables if _valid(tables, n) else None
+    if found is None:
+        return None
+    tables = found.arrays.get("tables")
+    if not _valid(tables, n):
+        set_aside(path, "not a valid Poisson-disk table")
+        return None
+    return tables
 
 
-def _write(path: Path, tables: np.ndarray) -> bool:
-    """Store ``tables`` atomically; False (and nothing left behind) on any error.
+def _write(path: Path, tables: np.ndarray, n: int | None = None) -> bool:
+    """Store ``tables`` atomically (:class:`mcrt.core.job.Checkpoint`); False (and
+    nothing left behind) on any error, ``KeyboardInterrupt`` included."""
+    from ..core.job import Checkpoint
 
-    Through :func:`mcrt.io.atomic.atomic_path`, whose temporary file is removed
-    on any exception, ``KeyboardInterrupt`` included.
-    """
-    from ..core.atomic import atomic_path
-
+    n = tables.shape[1] if n is None else n
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.save(f, tables, allow_pickle=False)
+        Checkpoint({"n": n}, {"tables": tables}).save(path, _key(n))
         return True
     except Exception:  # best effort: read-only or full disk, odd file systems, ...
         return False
@@ -597,7 +610,7 @@ def load_tables(n: int, *, disk_cache: bool = True) -> np.ndarray:
             if not np.array_equal(tables, points) and not _valid(tables, n):
                 raise RuntimeError(f"Poisson-disk tables for n={n} failed validation")
             if path is not None:
-                _write(path, tables)
+                _write(path, tables, n)
         tables.setflags(write=False)
         _MEMORY[n] = tables
         return tables

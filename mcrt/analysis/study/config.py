@@ -9,6 +9,7 @@ problem is reported as a one-line :class:`ConfigError`.
 from __future__ import annotations
 
 import logging
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -391,11 +392,12 @@ def _check_scene(spec: SceneSpec) -> None:
         sampling_integrator(scene)
     except McrtError as error:
         raise ConfigError(f"scene {spec.name!r}: {error}") from None
-    film = scene.sensors()[0].film()
-    if not film.rfilter().is_box_filter():
-        raise ConfigError(f"scene {spec.name!r}: the study needs a box reconstruction filter "
-                          f"(references are box-binned per-pixel means); the film uses "
-                          f"{film.rfilter().class_name()}")
+    film = scene.sensors()[0].film()  # any filter: references develop with the film's own
+    pixel_format = re.search(r"pixel_format = (\w+)", str(film))
+    if pixel_format and pixel_format.group(1) in ("y", "ya", "luminance", "luminance_alpha"):
+        raise ConfigError(f"scene {spec.name!r}: the film stores luminance only (pixel_format "
+                          f"{pixel_format.group(1)}); the study measures colour errors against "
+                          f"an RGB reference: give the film pixel_format rgb")
     width, height = (int(v) for v in film_grid_size(film))
     if min(width, height) < MIN_SIZE:
         raise ConfigError(f"scene {spec.name!r} renders {width}x{height} pixels; the aliasing "

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...core.accumulators import block_moments, sequential_block_sums
 from ...core.engine import sampling_integrator, trace_pass
-from ...core.job import Checkpoint, Interrupted
+from ...core.job import Checkpoint, CheckpointPacer, Interrupted
 from ...core.stats import PixelStats, chan_merge
 from ...core.trace import CameraSamples, film_grid_size, pixel_of_index
 from ...errors import McrtError
@@ -89,7 +89,9 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                     integrator: mi.SamplingIntegrator | None = None,
                     on_pass: Callable[[PassRecord], None] | None = None,
                     on_samples: Callable[..., None] | None = None,
-                    resume: Checkpoint | None = None) -> AdaptiveRender:
+                    resume: Checkpoint | None = None,
+                    save: Callable[[Checkpoint], object] | None = None,
+                    save_every: float | None = None) -> AdaptiveRender:
     """Render ``scene`` adaptively (see :mod:`mcrt.render.adaptive`).
 
     ``sampler`` defaults to the sensor's (its type and parameters are used, not
@@ -102,8 +104,12 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     Ctrl-C raises :class:`~mcrt.core.job.Interrupted` with the passes finished
     so far as ``partial`` (a pass in flight is dropped whole) and the
     :class:`~mcrt.core.job.Checkpoint` to resume from as ``state``;
-    ``resume`` continues from it. Every wavefront's samples depend only on (seed, pass, pixel), so
-    a resumed render equals an uninterrupted one.
+    ``resume`` continues from it; ``save(checkpoint)`` receives it while the
+    render runs (``save_every`` as in :func:`~mcrt.core.render.render_film`), so
+    that even a SIGKILL keeps the passes saved (the last pass is always saved:
+    the caller discards it once the result is written). Every wavefront's
+    samples depend only on (seed, pass, pixel), so a resumed render equals an
+    uninterrupted one.
     """
     sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
@@ -142,6 +148,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                        sampler, ladder, has_alpha, seconds_before + time.perf_counter() - start)
 
     saved = snapshot()
+    pacer = CheckpointPacer(save_every)
     try:
         while active.size:
             pass_start = time.perf_counter()
@@ -173,6 +180,10 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
             active = active_next
             k += 1
             saved = snapshot()
+            if save is not None and not active.size:  # kept until the caller wrote it
+                save(saved)
+            elif save is not None:
+                pacer.maybe(save, lambda: saved)
     except KeyboardInterrupt:
         done = int(saved.meta["next_pass"])
         raise Interrupted(finish(saved) if done > 0 else None, done, done + 1,

@@ -1,0 +1,197 @@
+"""How much memory a render may use, and how many lanes a pass can have.
+
+The memory available to this process is the smallest of:
+
+* the address-space limit (``ulimit -v``, ``RLIMIT_AS``) less the address space
+  already mapped (``VmSize``: that is what the limit counts);
+* the cgroup's limit less its current use (cgroup v2 ``memory.max`` /
+  ``memory.current``, or v1 ``memory.limit_in_bytes`` / ``memory.usage_in_bytes``),
+  with the memory the kernel can reclaim from the cgroup's page cache added;
+* the host's ``MemAvailable``.
+
+A pass's peak is modelled as ``fixed_bytes + lanes * bytes_per_lane``:
+``fixed_bytes`` for what does not depend on the pass size (the accumulator's
+float64 sums, the developed image), ``bytes_per_lane`` for the wavefront
+(Dr.Jit's per-lane state, the traced values and the pending sums).
+:data:`BYTES_PER_LANE` and :func:`film_bytes` are measured upper bounds for
+mcrt's passes (llvm variants: a 512x512 Cornell box at 0.26 to 4.2 million lanes
+adds about 30 bytes per lane to a film render's peak, and a reference's pass
+about 95 bytes per lane and 330 per pixel; the model's total is 1.2-2x the
+measured peak).
+"""
+
+from __future__ import annotations
+
+import resource
+from pathlib import Path
+
+from ..errors import McrtError
+
+#: Peak bytes a traced lane of a film render adds (measured ~30; safety 1.6).
+BYTES_PER_LANE = 48
+
+#: Peak bytes a traced lane of a statistics render (references) adds: the
+#: per-lane float64 values of the moments (measured ~95 at 512x512, 1-9 spp).
+STATS_BYTES_PER_LANE = 128
+
+#: What compiling and launching a pass's kernel takes besides its data (LLVM).
+KERNEL_BYTES = 32 << 20
+
+#: Share of the available memory a render plans to use (the rest: the
+#: allocator's slack, Python objects, the output writers).
+USABLE_SHARE = 0.8
+
+
+def _read_int(path: Path) -> int | None:
+    try:
+        text = path.read_text().split()[0]
+    except (OSError, IndexError):
+        return None
+    return int(text) if text.isdigit() else None
+
+
+def _status_bytes(field: str) -> int | None:
+    """A ``kB`` field of ``/proc/self/status`` in bytes (``VmSize``, ``VmRSS``)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _address_space_left() -> int | None:
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY:
+        return None
+    return max(0, soft - (_status_bytes("VmSize") or 0))
+
+
+def _cgroup_dir() -> Path | None:
+    """This process's cgroup directory (v2 unified, or v1's memory controller)."""
+    try:
+        lines = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        parts = line.split(":", 2)
+        if len(parts) != 3:
+            continue
+        if parts[0] == "0" and parts[1] == "":
+            return Path("/sys/fs/cgroup") / parts[2].lstrip("/")
+        if "memory" in parts[1].split(","):
+            return Path("/sys/fs/cgroup/memory") / parts[2].lstrip("/")
+    return None
+
+
+def _cgroup_left() -> int | None:
+    directory = _cgroup_dir()
+    if directory is None:
+        return None
+    left = None
+    # Walk up: a parent's limit binds as well (containers often limit a parent).
+    for level in [directory, *directory.parents]:
+        if not str(level).startswith("/sys/fs/cgroup"):
+            break
+        limit = _read_int(level / "memory.max") or _read_int(level / "memory.limit_in_bytes")
+        used = _read_int(level / "memory.current") or _read_int(level / "memory.usage_in_bytes")
+        if limit is None or used is None or limit >= 1 << 60:
+            continue
+        reclaimable = 0
+        try:
+            for line in (level / "memory.stat").read_text().splitlines():
+                name, _, value = line.partition(" ")
+                if name in ("inactive_file", "total_inactive_file"):
+                    reclaimable = int(value)
+        except (OSError, ValueError):
+            pass
+        here = max(0, limit - used + reclaimable)
+        left = here if left is None else min(left, here)
+    return left
+
+
+def _host_available() -> int | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def available_bytes() -> int | None:
+    """Bytes this process can still allocate (the tightest of ``ulimit -v``, the
+    cgroup limit and the host's available memory); None if none is known."""
+    known = [v for v in (_address_space_left(), _cgroup_left(), _host_available())
+             if v is not None]
+    return min(known) if known else None
+
+
+def lane_budget(bytes_per_lane: int = BYTES_PER_LANE, fixed_bytes: int = 0,
+                available: int | None = None) -> int | None:
+    """The most lanes one pass can trace within the memory available
+    (``available``, default :func:`available_bytes`): ``(USABLE_SHARE * available
+    - fixed_bytes) // bytes_per_lane``, at least 0; None when no limit is known."""
+    if available is None:
+        available = available_bytes()
+    if available is None:
+        return None
+    usable = int(available * USABLE_SHARE) - int(fixed_bytes)
+    return max(0, usable // max(1, int(bytes_per_lane)))
+
+
+def film_bytes(pixels: int, channels: int = 5) -> int:
+    """Memory of a render's per-pixel state besides the wavefront: float64 sums,
+    the developed float32 image and its numpy copy (a 2048x2048 render at 1 spp
+    peaks at ~360 MiB above the process's start; this model says 512 MiB)."""
+    return pixels * channels * (8 + 4 + 4)
+
+
+def moments_bytes(pixels: int) -> int:
+    """Memory of a reference's per-pixel state: the moments (count, mean, M2,
+    nonfinite: 64 bytes) of the running total, of the pass on the device and in
+    numpy, of their merge and of the saved state (measured: ~330 bytes per pixel
+    at 256x256 to 1024x1024)."""
+    return pixels * 64 * 6
+
+
+def _mib(value: int) -> str:
+    return f"{value / 2**20:.0f} MiB"
+
+
+def require_memory(pixels: int, fixed_bytes: int, what: str,
+                   bytes_per_lane: int = BYTES_PER_LANE) -> int | None:
+    """Before rendering: the lane budget (as :func:`lane_budget`, with
+    :data:`KERNEL_BYTES` added to ``fixed_bytes``), or a one-line
+    :class:`McrtError` if even the smallest pass (one sample of every pixel)
+    cannot fit."""
+    available = available_bytes()
+    fixed_bytes += KERNEL_BYTES
+    budget = lane_budget(bytes_per_lane, fixed_bytes, available)
+    if budget is not None and budget < pixels:
+        assert available is not None
+        needed = (fixed_bytes + pixels * bytes_per_lane) / USABLE_SHARE
+        limits = []
+        if _address_space_left() is not None:
+            limits.append("ulimit -v")
+        if _cgroup_left() is not None:
+            limits.append("the cgroup's memory limit")
+        where = f" (under {' and '.join(limits)})" if limits else ""
+        raise McrtError(f"not enough memory for {what}: even its smallest pass (1 sample per "
+                        f"pixel) needs about {_mib(int(needed))}, {_mib(available)} are "
+                        f"available{where}; use a smaller image or raise the limit")
+    return budget
+
+
+def describe() -> str:
+    """The memory limits seen, for notes and bug reports."""
+    parts = [f"{name} {_mib(value)}" for name, value in
+             (("ulimit -v left", _address_space_left()), ("cgroup left", _cgroup_left()),
+              ("host available", _host_available())) if value is not None]
+    return ", ".join(parts) or "no limit known"
+
+
+__all__ = ["BYTES_PER_LANE", "KERNEL_BYTES", "STATS_BYTES_PER_LANE", "available_bytes",
+           "describe", "film_bytes", "lane_budget", "moments_bytes", "require_memory"]
