@@ -34,6 +34,13 @@ def _finite(values: Sequence[Any]) -> mi.Bool:
     return finite
 
 
+def release_cached_memory() -> None:
+    """Return the buffers Dr.Jit keeps for reuse (freed pass data, copies) to the
+    system, so that the next allocations of other sizes do not add to the peak."""
+    dr.sync_thread()
+    dr.flush_malloc_cache()
+
+
 def _is_one(value: Any) -> bool:
     """Whether ``value`` is the literal 1 (the film's weight channel): not stored."""
     return bool(value.state == dr.VarState.Literal and dr.width(value) == 1 and value[0] == 1.0)
@@ -158,6 +165,8 @@ class FilmAccumulator:
         block = mi.ImageBlock(tensor, self.offset,
                               self.film.rfilter(), border=self.border > 0)
         self.film.put_block(block)
+        del flat, tensor, block
+        release_cached_memory()  # the interleaved copy, before the developed image
         return self.film.develop()
 
     # -- filtered splatting -------------------------------------------------------

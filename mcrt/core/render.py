@@ -24,7 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
-from .accumulators import FilmAccumulator, MomentsAccumulator
+from .accumulators import FilmAccumulator, MomentsAccumulator, release_cached_memory
 from .engine import Accumulator, PassRun, fitted_shape, grid_pixels, run_passes, sampling_integrator
 from .filtered import FilteredMomentsAccumulator, FilteredStats
 from .job import Checkpoint, CheckpointPacer, Interrupted
@@ -212,9 +212,13 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
                            "seconds": seconds}, accumulator.state())
 
     def result() -> FilmRender:
-        array = np.asarray(accumulator.develop().numpy(), dtype=np.float32)
+        release_cached_memory()  # the passes' buffers
+        developed = accumulator.develop()
+        array = np.array(developed, dtype=np.float32)
+        del developed
+        release_cached_memory()
         done, seconds = run.done, run.seconds
-        nonfinite = np.array(accumulator.nonfinite, dtype=np.int64).reshape(height, width)
+        nonfinite = np.array(accumulator.nonfinite, dtype=np.uint32).reshape(height, width)
         aovs = list(sampling_integrator(scene).aov_names())
         names = channel_names(film, array.shape[-1], aovs)
         return FilmRender(image=array, channels=names,
