@@ -380,12 +380,15 @@ def _authored_without(effect: str, tmp_path: Path) -> tuple[Path, Path]:
                             ('<float name="aperture_radius" value="$aperture"/>', ''),
                             ('<float name="focus_distance" value="6"/>', '')])
     elif effect == "soft_shadows":
-        # The 1.6 x 0.8 light of radiance L becomes a point light of intensity
-        # L * area at its centre (the plan's documented conversion).
+        # The 1.6 x 0.8 light of radiance L becomes a spot light along its normal
+        # at its centre, keeping its power (the plan's documented conversion).
         text = _drop_block(text, '<shape type="rectangle" id="light">', "</shape>")
         text = _edit(text, [('<shape type="rectangle" id="floor">',
-                             '<emitter type="point"><point name="position" value="-1.8, 3, 0.6"/>'
-                             '<rgb name="intensity" value="11.52, 10.88, 10.24"/></emitter>\n'
+                             '<emitter type="spot"><transform name="to_world"><lookat '
+                             'origin="-1.8, 3, 0.6" target="-1.8, 2, 0.6" up="1, 0, 0"/>'
+                             '</transform><float name="cutoff_angle" value="90"/>'
+                             '<float name="beam_width" value="32"/><rgb name="intensity" '
+                             'value="10.75375498, 10.15632415, 9.55889332"/></emitter>\n'
                              '    <shape type="rectangle" id="floor">')])
     elif effect == "glossy":
         text = _edit(text, [('type="roughconductor"', 'type="conductor"'),

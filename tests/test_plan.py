@@ -157,15 +157,17 @@ def test_negligible_depth_of_field_is_off_unless_forced():
     assert forced.on("dof") and forced.camera == "thinlens"
 
 
-def test_soft_shadows_off_replaces_area_lights_by_point_lights():
+def test_soft_shadows_off_replaces_area_lights_by_spot_lights():
     planned = plan_scene(EFFECT_SCENES / "soft_shadows.xml", overrides={"soft_shadows": False})
     emitters = planned.scene.emitters()
-    assert len(emitters) == 1 and emitters[0].class_name() == "PointLight"
-    params = mi.traverse(emitters[0])
-    assert np.allclose(np.array(params["position"]).ravel(), [-1.8, 3, 0.6], atol=1e-5)
+    assert len(emitters) == 1 and emitters[0].class_name() == "SpotLight"
+    m = np.array(emitters[0].world_transform().matrix).reshape(4, 4)
+    assert np.allclose(m[:3, 3], [-1.8, 3, 0.6], atol=1e-5)  # the light's centre
+    assert np.allclose(m[:3, 2], [0, -1, 0], atol=1e-5)      # along its normal
     area = 1.6 * 0.8  # the light's rectangle
-    assert np.allclose(np.array(params["intensity.value"]).ravel(),
-                       np.array([9, 8.5, 8]) * area, rtol=1e-5)
+    falloff = 0.535626858795831  # the spot's falloff integrated (x sin) over the hemisphere
+    assert np.allclose(np.array(mi.traverse(emitters[0])["intensity.value"]).ravel(),
+                       np.array([9, 8.5, 8]) * area / (2 * falloff), rtol=1e-5)  # same power
     assert "light" not in {s.id() for s in planned.scene.shapes()}
     assert planned.plan.integrator == {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}
 

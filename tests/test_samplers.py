@@ -167,14 +167,14 @@ def test_every_point_lies_in_its_own_stratum(name, spp):
 
 def test_uniform_grid_is_the_cell_centres():
     k = 7
-    xy = point_sets("uniform_grid", range(3), k * k, dimension=2)
+    xy = point_sets("uniform_grid", range(3), k * k, dimension=0)
     centres = (np.arange(k, dtype=np.float32) + np.float32(0.5)) / np.float32(k)
     for pixel in xy:
         got = sorted(map(tuple, pixel.tolist()))
         want = sorted((float(x), float(y)) for x in centres for y in centres)
         # Dr.Jit divides by a constant via its reciprocal: allow one float32 ulp.
         np.testing.assert_allclose(np.array(got), np.array(want), rtol=0, atol=2 ** -24)
-    v = point_sets("uniform_grid", range(3), k * k, dimension=1, ndim=1)[..., 0]
+    v = point_sets("uniform_grid", range(3), k * k, dimension=0, ndim=1)[..., 0]
     np.testing.assert_allclose(np.sort(v, axis=1)[0],
                                (np.arange(k * k, dtype=np.float32) + 0.5) / np.float32(k * k),
                                rtol=0, atol=2 ** -24)

@@ -262,14 +262,16 @@ class MotionDriver:
                  times: np.ndarray | None = None) -> None:
         self.motions = [m for m in motions if not m.is_static]
         self.times = None if times is None else np.asarray(times, dtype=np.float64)
+        self._initial: list[_RigidShape | _MeshShape] = []
+        self.time: float | None = None
+        if not self.motions:  # nothing to move: no traversal of a large scene
+            return
         self.params = mi.traverse(scene)
         shapes = {s.id(): s for s in scene.shapes()}
-        self._initial: list[_RigidShape | _MeshShape] = []
         for motion in self.motions:
             if motion.shape not in shapes:
                 raise SceneError(f"moving shape '{motion.shape}' is not a shape of the scene")
             self._initial.append(self._initial_pose(motion, shapes[motion.shape]))
-        self.time: float | None = None
 
     def _initial_pose(self, motion: Motion, shape: mi.Shape) -> _RigidShape | _MeshShape:
         bbox = shape.bbox()

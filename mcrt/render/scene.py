@@ -1,7 +1,8 @@
 """Loading scenes and samplers with errors a user can act on.
 
 Every scene mcrt renders is read by :func:`read_scene` (the XML parsed once,
-into a :class:`SceneDescription` that the render plan may edit) and built by
+upgraded and resolved as Mitsuba does, into a :class:`SceneDescription` that the
+render plan may edit) and built by
 :meth:`SceneDescription.instantiate`; :func:`load_scene` does both.
 """
 
@@ -40,9 +41,44 @@ def check_scene_file(path: str | Path) -> Path:
             raise SceneError(f"scene file not found: {path}")
         if not path.is_file():
             raise SceneError(f"scene path is not a file: {path}")
+        with open(path, "rb") as f:
+            head = f.read(16)
     except OSError as error:  # e.g. ENAMETOOLONG, which exists() does not swallow
         raise SceneError(f"cannot read scene {path}: {error.strerror}") from None
+    kind = next((k for magic, k in _IMAGE_MAGIC if head.startswith(magic)), None)
+    if kind is not None:
+        raise SceneError(f"{path} is {kind} image, not a scene: give a Mitsuba 3 XML scene "
+                         f"file (e.g. scenes/cornell_box.xml)")
     return path
+
+
+#: The first bytes of image files someone may give where a scene belongs.
+_IMAGE_MAGIC = ((b"\x89PNG", "a PNG"), (b"\xff\xd8\xff", "a JPEG"),
+                (b"\x76\x2f\x31\x01", "an OpenEXR"), (b"#?RADIANCE", "a Radiance HDR"),
+                (b"#?RGBE", "a Radiance HDR"), (b"II*\x00", "a TIFF"), (b"MM\x00*", "a TIFF"),
+                (b"GIF8", "a GIF"), (b"RIFF", "a RIFF (WebP?)"), (b"BM", "a BMP"))
+
+
+def scene_parameters(path: str | Path) -> list[str]:
+    """The parameters a scene file takes (``<default name=...>`` and ``$name``
+    references), sorted; included files are not read."""
+    try:
+        text = Path(path).read_text(errors="replace")
+    except OSError:
+        return []
+    names = re.findall(r"<default\s+name\s*=\s*[\"']([A-Za-z_]\w*)", text)
+    names += re.findall(r"\$([A-Za-z_]\w*)", text)
+    return sorted(set(names))
+
+
+def _explain(message: str, path: Path) -> str:
+    """Mitsuba's message, with the scene's parameters listed when a ``-D`` is unused."""
+    if "unused parameter" not in message:
+        return message
+    names = scene_parameters(path)
+    listed = (f"the scene's parameters are {', '.join(names)}" if names
+              else "the scene takes no parameters")
+    return f"{message}; {listed}"
 
 
 @contextmanager
@@ -96,8 +132,18 @@ def _not_a_scene(path: Path) -> SceneError:
     return SceneError(f"{path} does not describe a scene (its root is not <scene>)")
 
 
+#: A ``params`` key that is not a scene parameter: the name of a reconstruction
+#: filter plugin (``box``, ``gaussian``, ...) that replaces the film's filter
+#: (a study's ``filters`` axis sets it; it keys references and caches like any
+#: parameter).
+RFILTER_PARAM = "mcrt.rfilter"
+
+
 def read_scene(path: str | Path, params: dict[str, str] | None = None) -> SceneDescription:
-    """Parse a Mitsuba XML scene, substituting ``$key`` parameters from ``params``."""
+    """Parse a Mitsuba XML scene, substituting ``$key`` parameters from ``params``
+    (:data:`RFILTER_PARAM` replaces the film's reconstruction filter)."""
+    params = dict(params or {})
+    rfilter = params.pop(RFILTER_PARAM, None)
     path = check_scene_file(path)
     variant = mi.variant()
     if variant is None:
@@ -107,10 +153,48 @@ def read_scene(path: str | Path, params: dict[str, str] | None = None) -> SceneD
         with _scene_folder_first(path):
             state = mi.parser.parse_file(config, str(path), **(params or {}))
     except Exception as error:  # Mitsuba reports parse errors as RuntimeError
-        raise SceneError(f"cannot load scene {path}: {mitsuba_message(error)}") from None
+        raise SceneError(f"cannot load scene {path}: "
+                         f"{_explain(mitsuba_message(error), path)}") from None
     if state.nodes[0].type != mi.ObjectType.Scene:
         raise _not_a_scene(path)
-    return SceneDescription(path, config, state)
+    _upgrade(config, state, path)
+    desc = SceneDescription(path, config, state)
+    if rfilter is not None:
+        set_rfilter(desc, rfilter)
+    return desc
+
+
+def set_rfilter(desc: SceneDescription, plugin: str) -> None:
+    """Give every film of ``desc`` a default-parameter ``plugin`` filter."""
+    films = [i for i, n in enumerate(desc.nodes) if n.type == mi.ObjectType.Film]
+    for index in films:
+        props = desc.nodes[index].props
+        for key in props.keys():
+            value = props[key]
+            if isinstance(value, mi.Properties.ResolvedReference) and \
+                    desc.nodes[value.index()].type == mi.ObjectType.ReconstructionFilter:
+                desc.nodes[value.index()].props = mi.Properties(plugin)
+                break
+        else:
+            node = mi.parser.SceneNode()
+            node.type = mi.ObjectType.ReconstructionFilter
+            node.props = mi.Properties(plugin)
+            desc.nodes.append(node)  # may reallocate: look the film up again
+            desc.nodes[index].props["rfilter"] = mi.Properties.ResolvedReference(
+                len(desc.nodes) - 1)
+
+
+def _upgrade(config: mi.parser.ParserConfig, state: mi.parser.ParserState, path: Path) -> None:
+    """Mitsuba's own first two transforms, so that whoever reads the description
+    sees the scene as Mitsuba instantiates it: old-format (``version < 2``) names
+    upgraded (``maxDepth`` -> ``max_depth``, ``toWorld`` -> ``to_world``, ...) and
+    references resolved to node indices. Both are idempotent, so
+    :meth:`SceneDescription.instantiate` may run ``transform_all`` again."""
+    try:
+        mi.parser.transform_upgrade(config, state)
+        mi.parser.transform_resolve(config, state)
+    except Exception as error:  # e.g. a reference to a missing id
+        raise SceneError(f"cannot load scene {path}: {mitsuba_message(error)}") from None
 
 
 def load_scene(path: str | Path, params: dict[str, str] | None = None) -> mi.Scene:

@@ -9,8 +9,8 @@ those:
 effect        on when the scene has                  switched off by
 ============  =====================================  ===================================
 aa            always (the film position sample)      cannot be switched off
-soft_shadows  an ``area`` emitter                    each area-lit shape -> a ``point``
-                                                     light at its centre (see below)
+soft_shadows  an ``area`` emitter                    each area-lit shape -> a ``spot``
+                                                     or ``point`` light (see below)
 glossy        a rough BSDF (``roughconductor``,      rough -> smooth counterpart
               ``roughplastic``, ``roughdielectric``  (``conductor``, ``plastic``,
               with alpha >= 1e-3, ``principled``)    ``dielectric``)
@@ -20,8 +20,11 @@ dof           a ``thinlens`` camera whose circle of  ``thinlens`` -> ``perspecti
 motion        a moving shape (``mcrt_velocity`` ...) one sub-frame, shapes at their
               and an open shutter, streak >= 0.25 px shutter-open pose
 indirect      a ``path`` integrator deeper than 2    the shortest path the remaining
-              and at least two reflecting shapes     effects need
-              (or a mesh, which may see itself)
+              and at least two reflecting shapes     effects need (``path`` and
+              (or a mesh, which may see itself);     ``direct`` only: others are
+              any integrator (or one a wrapper       rendered as authored)
+              holds) deeper than 2, with such
+              shapes or participating media
 ============  =====================================  ===================================
 
 Then the plan chooses:
@@ -43,11 +46,26 @@ one the plan found negligible keeps it. The plan lists the sample dimensions a
 camera path consumes, in the order Mitsuba's integrators draw them (checked
 against counted ``next_1d``/``next_2d`` calls in ``tests/test_plan.py``).
 
-An area light switched off becomes a ``point`` light at the centre of its
-shape's bounding box with intensity ``L * A`` for planar shapes (``rectangle``,
-``disk``: their intensity along the normal) and ``L * A / 4`` otherwise (exact
-for spheres; the mean projected area of any convex shape is ``A / 4``); the
-light's shape is removed from the scene.
+An area light switched off becomes a delta light of the same power
+``pi L A`` at the centroid of its shape, which is removed from the scene. The
+shape's mean normal (its vector area over ``A``, from uniform position samples)
+says how: 1 for a flat shape (a ``rectangle``, a ``disk``, a quad mesh), which
+emits ``L A cos(theta)`` into its front hemisphere: a ``spot`` along the normal
+(cut off at 90 degrees, its falloff fitted to the cosine); 0 for a closed
+shape, which emits ``L A / 4`` in every direction when convex: a ``point``
+light. Any other shape is refused, with that reason.
+
+The scene is read once and, unless a thin lens turns out negligible or area
+lights are switched off, instantiated once: the decisions that need no
+geometry (all but dof and motion) are made and their edits written into the
+description first; moving shapes are posed in place (``mi.traverse``).
+
+Scenes in Mitsuba 0.5/0.6's format are read as Mitsuba reads them (its own
+upgrade of ``maxDepth``, ``toWorld``, ... runs before the plan looks).
+Wrapper integrators (``moment``, ``aov``, ``adaptive``, any plugin holding
+integrators) are rendered as authored; their indirect light is what the
+integrators inside trace, and participating media scatter light again for the
+volumetric ones (a plan note says which media render).
 
 The package, one concern a module:
 

@@ -61,7 +61,7 @@ class CameraModel:
         return cam[:, :2] * self.f_px
 
 
-def _auto_float(value: float | mi.Float) -> dr.auto.ad.Float:
+def auto_float(value: float | mi.Float) -> dr.auto.ad.Float:
     # Mitsuba's stubs type variant arrays as drjit.auto.ad's; mi.Float is the
     # active variant's Float, which is what the bindings take.
     return cast(dr.auto.ad.Float, mi.Float(value))
@@ -73,7 +73,7 @@ def visible_depths(scene: mi.Scene, sensor: mi.Sensor, grid: int = 48) -> np.nda
     u = (np.arange(grid) + 0.5) / grid
     x, y = np.meshgrid(u, u)
     pos = mi.Point2f(mi.Float(x.ravel().astype(np.float32)), mi.Float(y.ravel().astype(np.float32)))
-    ray, _ = sensor.sample_ray(_auto_float(sensor.shutter_open()), _auto_float(0.0), pos,
+    ray, _ = sensor.sample_ray(auto_float(sensor.shutter_open()), auto_float(0.0), pos,
                                mi.Point2f(0.5))
     si = scene.ray_intersect(ray)
     points = np.array(si.p, dtype=np.float64).T

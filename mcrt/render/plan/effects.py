@@ -1,8 +1,11 @@
 """The per-effect decisions: does the scene have the effect, does it render, why.
 
-Each ``decide_*`` function looks at the scene as authored (:class:`SceneFacts`)
-and records one :class:`~.model.Effect` in :class:`Decisions`, honouring the
-user's overrides; see the table in :mod:`mcrt.render.plan`.
+Each ``decide_*`` function looks at the scene as authored and records one
+:class:`~.model.Effect` in :class:`Decisions`, honouring the user's overrides;
+see the table in :mod:`mcrt.render.plan`. Most decisions read the description
+only (:class:`ScanFacts`), so the plan can edit it before the one
+instantiation; depth of field and motion measure the instantiated scene
+(:class:`SceneFacts`).
 """
 
 from __future__ import annotations
@@ -15,9 +18,10 @@ import mitsuba as mi
 from ...errors import McrtError
 from ..motion import NEGLIGIBLE_STREAK_PX, Motion
 from ..scene import SceneDescription
-from .camera import CameraModel, circle_of_confusion, first_value, streak_px
-from .model import Effect
-from .scan import AuthoredIntegrator, RoughBSDF, Scan, environment_emitters
+from .camera import CameraModel, circle_of_confusion, streak_px
+from .model import EFFECTS, Effect
+from .nodes import scalar
+from .scan import VOLUMETRIC, AuthoredIntegrator, RoughBSDF, Scan, environment_emitters
 
 #: Depth of field is negligible when no visible depth blurs by this many pixels.
 DOF_NEGLIGIBLE_PX = 0.5
@@ -26,24 +30,26 @@ GLOSSY_MIN_ALPHA = 1e-3
 
 
 @dataclass
-class SceneFacts:
-    """The scene as authored: its description, scan and instantiated scene."""
+class ScanFacts:
+    """The scene as authored, as its description says it (before any edit)."""
 
     desc: SceneDescription
     scan: Scan
-    scene: mi.Scene
-    sensor: mi.Sensor
-    camera: CameraModel
     scene_camera: str                   # the sensor's plugin
     shutter: tuple[float, float]        # (open, close)
+    lens: tuple[float, float] | None    # thinlens (aperture radius, focus distance)
 
     @classmethod
-    def of(cls, desc: SceneDescription, scan: Scan, scene: mi.Scene) -> SceneFacts:
-        sensor = scene.sensors()[0]
-        t_open = float(sensor.shutter_open())
-        t_close = t_open + float(sensor.shutter_open_time())
-        return cls(desc, scan, scene, sensor, CameraModel.of(sensor),
-                   desc.nodes[scan.sensor].props.plugin_name(), (t_open, t_close))
+    def of(cls, desc: SceneDescription, scan: Scan) -> ScanFacts:
+        props = desc.nodes[scan.sensor].props
+        t_open = float(scalar(props, "shutter_open")) if "shutter_open" in props else 0.0
+        t_close = float(scalar(props, "shutter_close")) if "shutter_close" in props else 0.0
+        lens = None
+        if props.plugin_name() == "thinlens":  # both are required: Mitsuba says so if absent
+            radius, focus = (float(scalar(props, k)) if k in props else math.nan
+                             for k in ("aperture_radius", "focus_distance"))
+            lens = (radius, focus)
+        return cls(desc, scan, props.plugin_name(), (t_open, max(t_open, t_close)), lens)
 
     @property
     def shutter_is_open(self) -> bool:
@@ -51,6 +57,22 @@ class SceneFacts:
 
     def node_id(self, node: int) -> str:
         return self.desc.nodes[node].props.id()
+
+
+@dataclass
+class SceneFacts(ScanFacts):
+    """The scene as authored and instantiated (after the edits that need no
+    geometry: its shutter is closed, its integrator may be the plan's)."""
+
+    scene: mi.Scene
+    sensor: mi.Sensor
+    camera: CameraModel
+
+    @classmethod
+    def built(cls, facts: ScanFacts, scene: mi.Scene) -> SceneFacts:
+        sensor = scene.sensors()[0]
+        return cls(facts.desc, facts.scan, facts.scene_camera, facts.shutter, facts.lens,
+                   scene, sensor, CameraModel.of(sensor))
 
 
 @dataclass
@@ -80,24 +102,31 @@ class Decisions:
         return self.effects[name].on
 
 
-def decide_effects(facts: SceneFacts, author: AuthoredIntegrator,
-                   overrides: dict[str, bool]) -> Decisions:
-    """Every effect, in the order plans list them."""
+def decide_described(facts: ScanFacts, author: AuthoredIntegrator,
+                     overrides: dict[str, bool]) -> Decisions:
+    """The effects the description decides (all but dof and motion)."""
     d = Decisions(overrides)
     decide_aa(d)
     decide_soft_shadows(d, facts)
     decide_glossy(d, facts)
+    decide_indirect(d, facts, author)
+    note_media(d, facts.scan, author)
+    return d
+
+
+def decide_measured(d: Decisions, facts: SceneFacts) -> None:
+    """The effects measured on the instantiated scene (dof, motion); then every
+    effect in the order plans list them."""
     decide_dof(d, facts)
     decide_motion(d, facts)
-    decide_indirect(d, facts, author)
-    return d
+    d.effects = {name: d.effects[name] for name in EFFECTS}
 
 
 def decide_aa(d: Decisions) -> None:
     d.decide("aa", True, "film position sampled over the pixel area (film 2D)")
 
 
-def decide_soft_shadows(d: Decisions, facts: SceneFacts) -> None:
+def decide_soft_shadows(d: Decisions, facts: ScanFacts) -> None:
     area = facts.scan.area_lights
     names = ", ".join(facts.node_id(s) for s, _ in area)
     lit = facts.scan.reflecting_shapes > 0
@@ -112,13 +141,13 @@ def decide_soft_shadows(d: Decisions, facts: SceneFacts) -> None:
                        f"soft_shadows does not switch them")
 
 
-def _describe_rough(facts: SceneFacts, bsdf: RoughBSDF) -> str:
+def _describe_rough(facts: ScanFacts, bsdf: RoughBSDF) -> str:
     alpha = (f", alpha {bsdf.alpha:g}" if bsdf.alpha is not None and math.isfinite(bsdf.alpha)
              else "")
     return f"{facts.node_id(bsdf.node) or bsdf.plugin} ({bsdf.plugin}{alpha})"
 
 
-def decide_glossy(d: Decisions, facts: SceneFacts) -> None:
+def decide_glossy(d: Decisions, facts: ScanFacts) -> None:
     rough = facts.scan.rough
     smooth = [b for b in rough if b.alpha is not None and b.alpha < GLOSSY_MIN_ALPHA]
     glossy = any(b.alpha is None or b.alpha >= GLOSSY_MIN_ALPHA for b in rough)
@@ -139,13 +168,13 @@ def decide_glossy(d: Decisions, facts: SceneFacts) -> None:
 
 
 def decide_dof(d: Decisions, facts: SceneFacts) -> None:
-    if facts.scene_camera != "thinlens":
+    if facts.lens is None:
         d.decide("dof", False, f"pinhole camera ({facts.scene_camera})",
                  "the camera is not a thinlens (give it aperture_radius and focus_distance)")
         return
-    params = mi.traverse(facts.sensor)
-    radius = first_value(params, "aperture_radius")
-    focus = first_value(params, "focus_distance")
+    # The instantiated sensor may be the pinhole the plan made of the thin lens:
+    # its rays are those through the centre of the lens, all the depths need.
+    radius, focus = facts.lens
     coc, depths = circle_of_confusion(facts.scene, facts.sensor, facts.camera, radius, focus)
     reason = f"thin lens, aperture radius {radius:g}, focus distance {focus:g}"
     if coc is not None:
@@ -182,15 +211,12 @@ def decide_motion(d: Decisions, facts: SceneFacts) -> None:
     d.decide("motion", present, reason)
 
 
-def decide_indirect(d: Decisions, facts: SceneFacts, author: AuthoredIntegrator) -> None:
+def decide_indirect(d: Decisions, facts: ScanFacts, author: AuthoredIntegrator) -> None:
     kind, depth, scan = author.kind, author.max_depth, facts.scan
-    if not author.replannable:
-        d.decide("indirect", False, f"the scene's own integrator '{kind}' decides")
-        if "indirect" in d.overrides:
-            raise McrtError(f"indirect: mcrt re-plans path and direct integrators only, "
-                            f"not '{kind}'")
-        return
     interreflect = scan.reflecting_shapes >= 2 or scan.mesh_shapes > 0
+    if not author.replannable:
+        _decide_authored_indirect(d, scan, author, interreflect)
+        return
     if not author.deep:
         reason = f"the scene's integrator is {kind}" + (
             f" with max_depth {depth}" if kind == "path" else "")
@@ -200,3 +226,40 @@ def decide_indirect(d: Decisions, facts: SceneFacts, author: AuthoredIntegrator)
         reason = f"{scan.reflecting_shapes} reflecting shapes and a path integrator of " \
                  f"max_depth {depth}"
     d.decide("indirect", author.deep and interreflect, reason)
+
+
+def _decide_authored_indirect(d: Decisions, scan: Scan, author: AuthoredIntegrator,
+                              interreflect: bool) -> None:
+    """Indirect light of an integrator rendered as authored: what the
+    integrators it wraps trace (``moment(volpath)`` renders indirect light),
+    with media scattering light again where a volumetric integrator sees them."""
+    leaves = author.leaves()
+    volumetric = [leaf.kind for leaf in leaves if leaf.kind in VOLUMETRIC]
+    scatter = interreflect or bool(volumetric and scan.media)
+    deep = [leaf for leaf in leaves if leaf.traces_indirect()]
+    unknown = [leaf.kind for leaf in leaves if leaf.traces_indirect() is None]
+    present = bool(deep) and scatter
+    if deep:
+        depths = ", ".join(f"{leaf.kind} max_depth {leaf.max_depth}" for leaf in deep)
+        reason = (f"{author.label} as authored: {depths}"
+                  + ("" if scatter else "; but no surface or medium can light another"))
+    elif unknown:
+        reason = f"{author.label} as authored: mcrt cannot tell what '{unknown[0]}' traces"
+    else:
+        reason = f"{author.label} as authored: direct lighting only"
+    forced = d.overrides.get("indirect")
+    if forced is not None and forced != present:
+        raise McrtError(f"indirect={'on' if forced else 'off'}: mcrt re-plans path and direct "
+                        f"integrators only; {reason}")
+    d.decide("indirect", present, reason)
+
+
+def note_media(d: Decisions, scan: Scan, author: AuthoredIntegrator) -> None:
+    """Say which participating media the scene has and whether they render."""
+    if not scan.media:
+        return
+    volumetric = [leaf.kind for leaf in author.leaves() if leaf.kind in VOLUMETRIC]
+    d.notes.append(f"participating media: {', '.join(scan.media)}; "
+                   + (f"rendered by {', '.join(volumetric)}" if volumetric else
+                      f"'{author.kind}' ignores them (only volpath, volpathmis and prbvolpath "
+                      f"render media)"))

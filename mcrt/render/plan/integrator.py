@@ -5,7 +5,7 @@ objects, ``direct`` for everything else."""
 
 from __future__ import annotations
 
-from .effects import Decisions, SceneFacts
+from .effects import Decisions, ScanFacts
 from .model import IntegratorSpec
 from .nodes import integer, scalar, scalars
 from .scan import AuthoredIntegrator, environment_emitters
@@ -15,7 +15,7 @@ from .scan import AuthoredIntegrator, environment_emitters
 DEFAULT_INDIRECT_DEPTH = 8
 
 
-def choose_integrator(facts: SceneFacts, author: AuthoredIntegrator,
+def choose_integrator(facts: ScanFacts, author: AuthoredIntegrator,
                       d: Decisions) -> tuple[IntegratorSpec, str]:
     """(integrator, why) for the decided effects."""
     if not author.replannable:
@@ -32,7 +32,7 @@ def choose_integrator(facts: SceneFacts, author: AuthoredIntegrator,
     return spec, reason
 
 
-def reflection_bounces(facts: SceneFacts, d: Decisions) -> int:
+def reflection_bounces(facts: ScanFacts, d: Decisions) -> int:
     """Bounces past direct light that glossy or specular surfaces need to show
     other objects: 1, 2 with dielectrics (in and out), 0 without such surfaces."""
     specular = bool(facts.scan.specular) or bool(d.to_smooth)
@@ -49,7 +49,7 @@ def _indirect(author: AuthoredIntegrator) -> tuple[IntegratorSpec, str]:
     return spec, "indirect light"
 
 
-def _distribution(facts: SceneFacts, d: Decisions, bounce: int) -> tuple[IntegratorSpec, str]:
+def _distribution(facts: ScanFacts, d: Decisions, bounce: int) -> tuple[IntegratorSpec, str]:
     what = "glossy" if d.on("glossy") else "specular"
     reason = (f"{what} surfaces show other objects: {bounce} bounce"
               f"{'s' if bounce > 1 else ''} past direct light"
@@ -57,16 +57,18 @@ def _distribution(facts: SceneFacts, d: Decisions, bounce: int) -> tuple[Integra
     return {"type": "distribution", "max_depth": 2 + bounce}, reason
 
 
-def _direct(facts: SceneFacts, author: AuthoredIntegrator,
+def _direct(facts: ScanFacts, author: AuthoredIntegrator,
             d: Decisions) -> tuple[IntegratorSpec, str]:
     """Direct lighting: one emitter sample, and a BSDF sample only when MIS
     needs one (emitters with area; glossy and specular surfaces never get
     here: they need :func:`_distribution`)."""
-    extended = (d.on("soft_shadows") and bool(facts.scan.area_lights)) \
-        or bool(environment_emitters(facts.scan))
+    extended = environment_emitters(facts.scan)
+    if d.on("soft_shadows") and facts.scan.area_lights:
+        extended = ["area", *extended]
     spec: IntegratorSpec = {"type": "direct", "emitter_samples": 1,
                             "bsdf_samples": 1 if extended else 0}
-    reason = ("direct lighting is all the scene needs; BSDF sample for MIS with area emitters"
+    reason = (f"direct lighting is all the scene needs; BSDF sample for MIS with the "
+              f"{', '.join(extended)} emitter{'s' if len(extended) > 1 else ''}"
               if extended else
               "direct lighting is all the scene needs; delta lights only, so no BSDF sample")
     if author.kind == "direct":

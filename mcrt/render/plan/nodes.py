@@ -76,22 +76,5 @@ def rgb(props: mi.Properties, key: str) -> np.ndarray | None:
     return None
 
 
-def matrix(props: mi.Properties, key: str) -> np.ndarray:
-    """A transform property as a 4x4 float64 matrix (identity when absent)."""
-    if key not in props:
-        return np.eye(4)
-    value = props[key]
-    if not isinstance(value, (mi.ScalarTransform4d, mi.ScalarTransform4f)):
-        raise SceneError(f"{props.plugin_name()}: '{key}' must be a <transform>")
-    return np.array(value.matrix, dtype=np.float64).reshape(4, 4)
-
-
-def bbox_centre(shape: mi.Shape) -> np.ndarray:
-    """Centre of a shape's bounding box (float64)."""
-    bbox = shape.bbox()
-    return 0.5 * (np.array(bbox.min, dtype=np.float64).ravel()
-                  + np.array(bbox.max, dtype=np.float64).ravel())
-
-
 def shapes_by_id(scene: mi.Scene) -> dict[str, mi.Shape]:
     return {s.id(): s for s in scene.shapes()}

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import mitsuba as mi
 
-from ...core.sampling import quiet_sampler_warnings, sampler_name
+from ...core.sampling import make_sampler, quiet_sampler_warnings, sampler_name
 from ...errors import McrtError
 from ..motion import Motion, MotionDriver, subframe_count, subframe_times
 from .model import RenderPlan
@@ -37,15 +37,23 @@ class PlannedScene:
             return 1
         return subframe_count(self.plan.streak_px, spp, self.step_px)
 
-    def schedule(self, sampler: mi.Sampler | None = None, spp: int | None = None,
+    def schedule(self, sampler: mi.Sampler | str | None = None, spp: int | None = None,
                  seed: int = 0, subframes: int | None = None, time_mode: str = "shifted"
                  ) -> tuple[int | None, Callable[[int, int], None] | None]:
         """``(passes, on_pass)`` for rendering this scene with ``sampler`` at ``spp``.
 
+        ``sampler`` is a sampler plugin, the name of one (``"jittered"``: made
+        with :func:`~mcrt.core.sampling.make_sampler` at ``spp``, default the
+        scene's sample count) or None (the scene's own sampler).
         ``subframes`` forces the sub-frame count (it must divide the sample count);
         ``time_mode`` is :func:`~mcrt.render.motion.subframe_times`' ``mode``.
         """
-        sampler = sampler if sampler is not None else self.scene.sensors()[0].sampler()
+        scene_sampler = self.scene.sensors()[0].sampler()
+        if isinstance(sampler, str):
+            with quiet_sampler_warnings():  # as below: the render reports any rounding
+                sampler = make_sampler(sampler, spp if spp is not None else
+                                       scene_sampler.sample_count())
+        sampler = sampler if sampler is not None else scene_sampler
         if spp is not None:
             with quiet_sampler_warnings():  # the render that follows reports any rounding
                 sampler.set_sample_count(spp)

@@ -1,53 +1,99 @@
-"""Planning a scene: read it once, decide its effects, edit and build it."""
+"""Planning a scene: read it once, decide its effects, edit and build it.
+
+The description is read once and, in the common case, instantiated once: the
+decisions that need no geometry come first and their edits go into the
+description; the scene built from it measures depth of field and motion. Only
+a thin lens found negligible or area lights switched off build it again.
+"""
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 
+import mitsuba as mi
+
 from ...core.sampling import sampler_name
+from ...errors import SceneError
 from ..motion import SUBFRAME_STEP_PX
-from ..scene import read_scene
-from .edits import apply_plan, name_area_lights
-from .effects import SceneFacts, decide_effects
+from ..multisample import wrap_integrator
+from ..scene import SceneDescription, read_scene
+from .edits import bake_pose, edit_built, edit_description, name_area_lights, rendered_camera
+from .effects import ScanFacts, SceneFacts, decide_described, decide_measured
 from .integrator import choose_integrator
 from .model import RenderPlan, check_overrides
+from .nodes import integer
 from .planned import PlannedScene
 from .scan import AuthoredIntegrator, scan_scene
 
 
 def plan_scene(path: str | Path, params: dict[str, str] | None = None,
                overrides: dict[str, bool] | None = None,
-               step_px: float = SUBFRAME_STEP_PX) -> PlannedScene:
+               step_px: float = SUBFRAME_STEP_PX, wrap: str | None = None) -> PlannedScene:
     """Analyse the scene at ``path`` and build the scene its plan renders.
 
     ``params`` substitutes the scene's ``$key`` parameters; ``overrides``
     (``{"dof": False, "motion": True}``) switches effects off or forces them on.
     The ``distribution`` integrator a plan may choose is registered by
-    ``import mcrt`` (:func:`mcrt.register`).
+    ``import mcrt`` (:func:`mcrt.register`). ``wrap`` nests the planned
+    integrator in that integrator plugin (``"multisample"``: ``mcrt render
+    --multisample``).
     """
     overrides = check_overrides(overrides)
     desc = read_scene(path, params)
     scan = scan_scene(desc)  # also strips the motion properties
+    if scan.sensor < 0:  # Mitsuba's own error first (a plugin it cannot find, ...)
+        _instantiate(desc)
+        raise SceneError(f"{path} has no sensor to render from")
     name_area_lights(desc, scan)
-    facts = SceneFacts.of(desc, scan, desc.instantiate())
+    described = ScanFacts.of(desc, scan)
     author = AuthoredIntegrator.of(desc, scan)
-    decisions = decide_effects(facts, author, overrides)
-    integrator, integrator_reason = choose_integrator(facts, author, decisions)
-    camera = apply_plan(facts, decisions, integrator if author.replannable else None)
-    scene = desc.instantiate()
+    decisions = decide_described(described, author, overrides)
+    integrator, integrator_reason = choose_integrator(described, author, decisions)
+    edit_description(described, decisions, integrator if author.replannable else None)
+    if wrap is not None:
+        wrap_integrator(desc, wrap)
+    facts = SceneFacts.built(described, _instantiate(desc))
+    decide_measured(decisions, facts)
+    scene = _instantiate(desc) if edit_built(facts, decisions) else facts.scene
+    bake_pose(scene, decisions, facts.shutter[0])
 
     sampler = scene.sensors()[0].sampler()
     spp = sampler.sample_count()
+    notes = decisions.notes + _rounding_note(desc, sampler)
     streak = decisions.streak_px
     plan = RenderPlan(
-        scene=str(path), effects=decisions.effects, camera=camera,
+        scene=str(path), effects=decisions.effects, camera=rendered_camera(facts),
         scene_camera=facts.scene_camera, integrator=integrator,
         integrator_reason=integrator_reason, scene_integrator=author.label,
         shutter=facts.shutter, sampler=sampler_name(sampler), spp=spp,
         motions=decisions.motions,
         streak_px=streak if math.isfinite(streak) else float(spp) * step_px,
-        coc_px=decisions.coc_px, notes=decisions.notes)
+        coc_px=decisions.coc_px, notes=notes)
     planned = PlannedScene(plan, scene, decisions.motions, step_px)
     planned.plan.subframes = planned.subframes_for(plan.spp)
     return planned
+
+
+def _instantiate(desc: SceneDescription) -> mi.Scene:
+    """Build the scene; mcrt's samplers keep quiet about rounding the scene's
+    sample count, which a render may never use (:func:`_rounding_note` says it)."""
+    logger = logging.getLogger("mcrt.samplers")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        return desc.instantiate()
+    finally:
+        logger.setLevel(level)
+
+
+def _rounding_note(desc: SceneDescription, sampler: mi.Sampler) -> list[str]:
+    """A note when the scene's sampler does not take the sample count it is given."""
+    for node in desc.nodes:
+        if node.type == mi.ObjectType.Sampler and "sample_count" in node.props:
+            asked = integer(node.props, "sample_count")
+            if asked != sampler.sample_count():
+                return [f"the scene's {sampler_name(sampler)} sampler takes sample_count "
+                        f"{asked} as {sampler.sample_count()}"]
+    return []

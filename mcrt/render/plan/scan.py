@@ -34,6 +34,14 @@ EXTENDED_EMITTERS = {"area", "constant", "envmap", "sunsky", "directionalarea"}
 MESH_SHAPES = {"obj", "ply", "serialized", "mesh", "merge", "shapegroup", "instance"}
 #: Integrators the plan may replace; any other is rendered as authored.
 REPLANNABLE = {"path", "direct"}
+#: ``max_depth`` of Mitsuba 3.9.1's integrators when the scene sets none (-1:
+#: unbounded); ``max_depth`` 2 is direct lighting, larger values add indirect light.
+DEFAULT_MAX_DEPTH = {"path": -1, "volpath": -1, "volpathmis": -1, "ptracer": -1, "prb": 6,
+                     "prb_basic": 6, "prbvolpath": 6, "direct_projective": 2}
+#: Integrators that never follow light past one bounce (or trace none at all).
+NO_INDIRECT = {"direct", "depth", "aov"}
+#: Integrators that render participating media (the others ignore them).
+VOLUMETRIC = {"volpath", "volpathmis", "prbvolpath"}
 
 
 class RoughBSDF(NamedTuple):
@@ -59,6 +67,7 @@ class Scan:
     reflecting_shapes: int = 0
     mesh_shapes: int = 0
     motions: dict[int, Motion] = field(default_factory=dict)  # shape node -> motion
+    media: list[str] = field(default_factory=list)  # "homogeneous (interior of 'glass')", ...
 
     @property
     def moving(self) -> list[Motion]:
@@ -82,7 +91,17 @@ def scan_scene(desc: SceneDescription) -> Scan:
             _scan_bsdf(scan, i, node.props)
         elif node.type == mi.ObjectType.Shape:
             _scan_shape(scan, desc, i, node.props)
+        if node.type in (mi.ObjectType.Shape, mi.ObjectType.Sensor):
+            _scan_media(scan, desc, node.props)
     return scan
+
+
+def _scan_media(scan: Scan, desc: SceneDescription, props: mi.Properties) -> None:
+    """The participating media a shape (interior, exterior) or sensor holds."""
+    for key, j in children(desc, props):
+        if desc.nodes[j].type == mi.ObjectType.Medium:
+            owner = props.id() or props.plugin_name()
+            scan.media.append(f"{desc.nodes[j].props.plugin_name()} ({key} of '{owner}')")
 
 
 def _roughness(props: mi.Properties) -> float:
@@ -130,17 +149,28 @@ def environment_emitters(scan: Scan) -> list[str]:
 
 @dataclass
 class AuthoredIntegrator:
-    """The scene's own integrator (``path`` when it names none)."""
+    """The scene's own integrator (``path`` when it names none), with the
+    integrators it wraps (``moment``, ``aov``, ``adaptive``, a user plugin)."""
 
-    label: str                 # as plans report it, e.g. "path (default)"
+    label: str                 # as plans report it, e.g. "path (default)", "moment(path)"
     props: mi.Properties       # a copy: the description's may be edited
+    nested: list[AuthoredIntegrator] = field(default_factory=list)
 
     @classmethod
     def of(cls, desc: SceneDescription, scan: Scan) -> AuthoredIntegrator:
         if scan.integrator is None:
             return cls("path (default)", mi.Properties("path"))
-        props = mi.Properties(desc.nodes[scan.integrator].props)
-        return cls(props.plugin_name(), props)
+        return cls._read(desc, scan.integrator)
+
+    @classmethod
+    def _read(cls, desc: SceneDescription, node: int) -> AuthoredIntegrator:
+        props = mi.Properties(desc.nodes[node].props)
+        nested = [cls._read(desc, j) for _, j in children(desc, props)
+                  if desc.nodes[j].type == mi.ObjectType.Integrator]
+        label = props.plugin_name()
+        if nested:
+            label += f"({', '.join(n.label for n in nested)})"
+        return cls(label, props, nested)
 
     @property
     def kind(self) -> str:
@@ -148,8 +178,25 @@ class AuthoredIntegrator:
 
     @property
     def max_depth(self) -> int:
-        """The authored ``max_depth``; -1 (unbounded) when unset."""
-        return integer(self.props, "max_depth") if "max_depth" in self.props else -1
+        """The authored ``max_depth``, else Mitsuba's default (-1: unbounded)."""
+        if "max_depth" in self.props:
+            return integer(self.props, "max_depth")
+        return DEFAULT_MAX_DEPTH.get(self.kind, -1)
+
+    def leaves(self) -> list[AuthoredIntegrator]:
+        """The integrators that trace light: this one, or those it wraps."""
+        if not self.nested:
+            return [self]
+        return [leaf for n in self.nested for leaf in n.leaves()]
+
+    def traces_indirect(self) -> bool | None:
+        """Whether this (leaf) integrator follows light past direct lighting;
+        None when mcrt cannot tell (a plugin it does not know, no max_depth)."""
+        if self.kind in NO_INDIRECT or self.nested:
+            return False
+        if "max_depth" not in self.props and self.kind not in DEFAULT_MAX_DEPTH:
+            return None
+        return self.max_depth < 0 or self.max_depth > 2
 
     @property
     def replannable(self) -> bool:
