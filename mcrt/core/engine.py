@@ -40,6 +40,7 @@ from ..samplers._stratified import split_sample
 from ..samplers.base import is_mcrt_sampler
 from .memory import BYTES_PER_LANE, KERNEL_BYTES, lane_budget
 from .progress import Progress
+from .sampling import bind_film_width
 from .trace import CameraSamples, film_grid_size, pixel_of_index, trace
 
 log = logging.getLogger("mcrt.engine")
@@ -223,6 +224,7 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
     film = sensor_obj.film()
+    bind_film_width(sampler, grid_pixels(film)[0])  # zsobol orders pixels along the film
     sampler.set_samples_per_wavefront(shape.group)
     start_seed: Any = resume_seed(sampler, seed, run.done)  # the stub wants a UInt array
     sampler.seed(start_seed, shape.lanes)

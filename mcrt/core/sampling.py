@@ -12,9 +12,10 @@ samplers add that property to the seed they are given, which made
 
 from __future__ import annotations
 
+import difflib
 import logging
 import re
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -43,8 +44,18 @@ def mitsuba_message(error: BaseException) -> str:
 def check_sampler_name(name: str) -> str:
     """Return ``name`` if mcrt can render with that sampler, else raise."""
     if name not in ALL_SAMPLERS:
-        raise SamplerError(f"unknown sampler {name!r}; choose one of: {', '.join(ALL_SAMPLERS)}")
+        raise SamplerError(f"unknown sampler {name!r}{did_you_mean(name, ALL_SAMPLERS)}; "
+                           f"choose one of: {', '.join(ALL_SAMPLERS)}")
     return name
+
+
+def did_you_mean(name: str, choices: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the choice closest to a mistyped ``name``
+    (case and spaces aside), or ``""`` when none is close."""
+    choices = list(choices)
+    key = name.strip().lower().replace("-", "_").replace(" ", "_")
+    close = difflib.get_close_matches(key, choices, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def make_sampler(name: str, spp: int, **params: Any) -> mi.Sampler:
@@ -58,6 +69,15 @@ def make_sampler(name: str, spp: int, **params: Any) -> mi.Sampler:
         return mi.load_dict({"type": name, "sample_count": int(spp), **params})
     except Exception as error:
         raise SamplerError(f"cannot create sampler {name!r}: {mitsuba_message(error)}") from None
+
+
+def bind_film_width(sampler: mi.Sampler, width: int) -> None:
+    """Tell a sampler that needs the film size (``zsobol``: its ``width``
+    property) the width of the pixel grid it is about to render; other samplers
+    are left alone. Called wherever mcrt seeds a sampler for a film."""
+    set_width = getattr(sampler, "set_film_width", None)
+    if callable(set_width):
+        set_width(int(width))
 
 
 #: Mitsuba's C++ class names of the built-in samplers.

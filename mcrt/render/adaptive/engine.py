@@ -17,6 +17,7 @@ import numpy as np
 from ...core.accumulators import block_moments, sequential_block_sums
 from ...core.engine import sampling_integrator, trace_pass
 from ...core.job import Checkpoint, CheckpointPacer, Interrupted
+from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats, chan_merge
 from ...core.trace import CameraSamples, film_grid_size, pixel_of_index
 from ...errors import McrtError
@@ -124,6 +125,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
 
     grid = film_grid_size(film)
+    bind_film_width(sampler, int(grid[0]))  # zsobol orders pixels along the film
     width, height = int(grid[0]), int(grid[1])
     pixels = width * height
     s = settings.subpixels
