@@ -1,4 +1,4 @@
-"""Print the measured figures of the README's "Hard cases" table.
+"""Print the measured figures of the "Hard cases" table of docs/hard-cases.md.
 
 For each case of ``tests/test_hard_cases.py`` (same scenes, settings, seeds
 and references as the tests): the non-finite samples per sampler, the largest

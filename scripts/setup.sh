@@ -3,7 +3,9 @@
 #   1. a libLLVM >= 17 for Dr.Jit's LLVM backend  (apt: newest libllvmNN, NN >= 17, e.g. libllvm19)
 #   2. a Python >= 3.11 that can create a venv   (apt: python3 python3-venv, or python3.X python3.X-venv)
 #   3. .venv in the repo root with `pip install -e ".[test]"` (skipped while pyproject.toml is unchanged)
-#   4. a check that Dr.Jit loads a libLLVM >= 17 and that `import mcrt` works.
+#   4. a check that Dr.Jit loads a libLLVM >= 17 and that `import mcrt` works;
+#   5. headless Chromium and its WebDriver for the report viewer's browser test
+#      (apt: chromium chromium-driver); optional: a failure is a warning, not an error.
 #
 # Usage: `bash scripts/setup.sh` (scripts/demo.sh and scripts/test.sh source this file and call
 # mcrt_setup). Safe to rerun. Sourcing it only defines functions and variables; nothing runs.
@@ -14,6 +16,7 @@
 #                          3.12, 3.11, python3 on PATH).
 #   MCRT_LLVM_SEARCH_DIRS  colon-separated directories to search for libLLVM instead of the system
 #                          ones and `ldconfig -p` (meant for testing the detection).
+#   MCRT_SKIP_BROWSER=1    do not look for or install Chromium (the browser test then skips).
 
 set -euo pipefail
 
@@ -26,6 +29,7 @@ MCRT_MIN_PY_MINOR=11     # Python 3.11
 MCRT_MIN_LLVM=17         # Debian's libLLVM 14-16 abort on Mitsuba's first kernel.
 MCRT_LLVM_FOUND=""       # path of the best libLLVM found on disk, set by ensure_llvm
 MCRT_APT_UPDATED=0
+MCRT_BROWSER_READY=0     # 1 once ensure_browser found Chromium and chromedriver
 
 log() { printf '[setup] %s\n' "$*" >&2; }
 err() { printf '[setup] error: %s\n' "$*" >&2; }
@@ -400,12 +404,45 @@ verify() {
 }
 
 # ---------------------------------------------------------------------------------------------
+# Headless Chromium + chromedriver (tests/test_report_viewer.py drives the report in it)
+
+# A Chromium-family browser and a chromedriver on this machine (Debian: /usr/bin/chromium and
+# /usr/bin/chromedriver; GitHub's Ubuntu images: google-chrome and $CHROMEWEBDRIVER).
+have_browser() {
+    local b d found_b="" found_d=""
+    for b in chromium chromium-browser google-chrome google-chrome-stable; do
+        command -v "$b" >/dev/null 2>&1 && { found_b="$b"; break; }
+    done
+    for d in chromedriver "${CHROMEWEBDRIVER:+$CHROMEWEBDRIVER/chromedriver}"; do
+        [[ -n "$d" ]] && command -v "$d" >/dev/null 2>&1 && { found_d="$d"; break; }
+    done
+    [[ -n "$found_b" && -n "$found_d" ]] || return 1
+    log "browser for the report test: $found_b with $found_d"
+}
+
+ensure_browser() {
+    if [[ "${MCRT_SKIP_BROWSER:-0}" == 1 ]]; then
+        log "MCRT_SKIP_BROWSER=1: not looking for Chromium (the report viewer's browser test skips)"
+        return 0
+    fi
+    if have_browser; then
+        MCRT_BROWSER_READY=1
+        return 0
+    fi
+    if can_apt && apt_install chromium chromium-driver && have_browser; then
+        MCRT_BROWSER_READY=1
+        return 0
+    fi
+    log "warning: no headless Chromium with chromedriver (Debian: apt-get install chromium"
+    log "         chromium-driver); mcrt works without it, the report viewer's browser test skips."
+}
 
 mcrt_setup() {
     ensure_llvm
     ensure_venv
     ensure_packages
     verify
+    ensure_browser
 }
 
 # Run only when executed (`bash scripts/setup.sh`), not when sourced by demo.sh / test.sh.

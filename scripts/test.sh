@@ -13,6 +13,8 @@ mcrt_setup
 cd "$MCRT_ROOT"
 # Tests may plot: never try to open a window (CI has no display).
 export MPLBACKEND=Agg
+# Chromium is installed: the report viewer's browser test must run, not skip.
+if (( MCRT_BROWSER_READY )); then export MCRT_REQUIRE_BROWSER=1; fi
 
 log "running: ruff check mcrt tests benchmarks scripts"
 "$MCRT_VENV/bin/ruff" check mcrt tests benchmarks scripts \

@@ -44,7 +44,7 @@ def test_render_defaults_come_from_the_scene(tmp_path, capsys, monkeypatch):
     code, stdout, _ = run_cli(capsys, "-q", "render", CORNELL, *SMALL, "-D", "spp=9")
     assert code == 0
     assert "sampler jittered" in stdout and "spp 9" in stdout
-    assert (tmp_path / "cornell_box_jittered.exr").exists()
+    assert (tmp_path / "out" / "cornell_box_jittered.exr").exists()  # never in the cwd
 
 
 def test_same_seed_same_image(tmp_path, capsys):

@@ -219,7 +219,9 @@ def test_quick_study_writes_a_self_contained_report(quick):
         with Image.open(out / name) as image:
             assert image.format == "PNG" and min(image.size) > 100
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 5
+    assert html.count("data:image/png;base64,") == 3  # summary and error plots
+    assert html.count("class='mcrt-viewer'") == 2     # the images: one viewer per scene
+    assert len(list((out / "exr").glob("*/*.exr"))) == 2 * (1 + 5 * 3 * 2)
     assert "src='http" not in html and 'src="http' not in html and "<link" not in html
     for label in ("uniform_grid", "jittered", "poisson_disk", "independent", "orthogonal",
                   "checkerboard", "cornell_box", "dr.sync_thread", "warm-up"):

@@ -43,7 +43,7 @@ Why |z| < Z_MAX = 5
 ``uniform_grid`` is a deterministic quadrature in the film plane (sample at
 cell centres) and aliases sub-pixel features; it is held to the same
 finiteness and bookkeeping checks, and its bias against the reference is
-measured and bounded in a separate test (documented in the README's "Hard
+measured and bounded in a separate test (documented in docs/hard-cases.md, "Hard
 cases" table), not hidden by loosening the test for the other samplers.
 """
 
@@ -267,7 +267,7 @@ UNIFORM_GRID_BIAS = {"fireflies": 0.35, "dynamic_range": 0.01, "grazing": 0.02,
 def test_uniform_grid_bias_is_bounded(case):
     """``uniform_grid`` samples every dimension at cell centres: a deterministic
     quadrature whose error is a bias, not noise. It is measured here against
-    the same reference and bounded loosely (the README lists the measured
+    the same reference and bounded loosely (docs/hard-cases.md lists the measured
     values); where it exceeds the CI it is reported as a bias, not hidden."""
     name, params, spp, ref_spp, tile = CASES[case]
     stats = render(name, "uniform_grid", spp, seed=7, **params).stats
@@ -285,7 +285,7 @@ def test_the_agreement_test_catches_zeroed_nans_and_small_biases():
     NaN/Inf samples *zeroed* instead of left out (what a renderer that folds
     them away would report) fails it, and so does a 3% brighter render of the
     grazing scene (its smallest detectable bias is ~1%; the noisier scenes'
-    are in the README)."""
+    are in docs/hard-cases.md)."""
     name, params, spp, ref_spp, tile = CASES["degenerate"]
     stats = render(name, "jittered", spp, seed=7, **params).stats
     ref = reference(name, ref_spp, **params).stats
@@ -535,7 +535,7 @@ def test_zero_area_triangles_silently_corrupt_recomputed_vertex_normals():
     ``to_world`` has rounded its vertices off the line, a unit normal of
     arbitrary sign. The quad's corner that is a needle's middle vertex gets
     (0, 0, -1): part of panel A turns black or dark. All samples are finite,
-    nothing can be counted. If this fails, Mitsuba changed: update the README."""
+    nothing can be counted. If this fails, Mitsuba changed: update docs/hard-cases.md."""
     scene = planned("degenerate.xml", **DEG_PARAMS).scene
     normals = np.array(mi.traverse(scene)["panel_a.vertex_normals"]).reshape(-1, 3)
     np.testing.assert_allclose(normals[2], [0, 0, -1], atol=1e-6)  # the quad's corner (1, 1)
@@ -557,7 +557,7 @@ def test_zero_length_normals_are_a_silent_black_panel():
     panel B comes out exactly 0 in every sample. No sample is NaN, so nothing
     can be counted: a silently wrong, finite value (the same panel with proper
     normals, ``quad_b=quad.ply``, is ~0.4). If this test fails, Mitsuba changed
-    its behaviour: update the README's "Hard cases" table."""
+    its behaviour: update the "Hard cases" table of docs/hard-cases.md."""
     scene = planned("degenerate.xml", **DEG_PARAMS).scene
     b_full = covered(scene, PANEL_B)
     assert b_full.sum() >= 4

@@ -42,7 +42,9 @@ def _tiny(tmp: Path, size: int = 32) -> Path:
 
 
 def _same(a: Checkpoint, b: Checkpoint) -> bool:
-    return a.meta == b.meta and a.arrays.keys() == b.arrays.keys() and all(
+    """Equal as stored: the metadata as JSON (a tuple is saved as a list)."""
+    return json.dumps(a.meta, sort_keys=True) == json.dumps(b.meta, sort_keys=True) \
+        and a.arrays.keys() == b.arrays.keys() and all(
         a.arrays[k].dtype == b.arrays[k].dtype
         and np.array_equal(a.arrays[k], b.arrays[k], equal_nan=True) for k in a.arrays)
 

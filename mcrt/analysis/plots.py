@@ -163,12 +163,15 @@ def _colours(labels: list[str]) -> dict[str, Any]:
 
 def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bool = True) -> None:
     """Excess MSE of every sampler of ``scene`` against ``axis`` ("spp" or
-    "seconds"): means over seeds with their sd, the fitted power law, the
-    reference's noise floor; unresolved cells as crosses."""
+    "seconds"): means over seeds with their sd, each point labelled with its
+    spp, the fitted power law, the reference's noise floor; unresolved cells
+    (MSE within the reference's noise) as crosses, explained in the legend."""
+    from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
     labels = [s.label for s in result.config.samplers]
     colours = _colours(labels)
+    unresolved = False
     for label in labels:
         cells = [c for c in result.cells if c["scene"] == scene and c["sampler"] == label]
         if not cells:  # a partial study: nothing measured yet
@@ -184,9 +187,13 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
             low = np.minimum(sd[ok], 0.95 * y[ok])
             ax.errorbar(x[ok], y[ok], yerr=(low, sd[ok]), color=colours[label], marker="o",
                         ms=3.5, lw=0, elinewidth=1, capsize=2, label=name)
+        yy = np.where(ok, y, np.where(y > 0, y, scene_floor(result, scene)))
         if (~ok).any():
-            yy = np.where(y > 0, y, scene_floor(result, scene))
+            unresolved = True
             ax.scatter(x[~ok], yy[~ok], marker="x", color=colours[label], s=20)
+        for xi, yi, c in zip(x, yy, cells):
+            ax.annotate(str(c["spp"]), (xi, yi), xytext=(3, 3), textcoords="offset points",
+                        fontsize=6, color=colours[label])
         if math.isfinite(slope) and ok.any():
             xs = np.geomspace(x[ok].min(), x[ok].max(), 20)
             ax.plot(xs, 10 ** (fit[f"intercept_{axis}"] + slope * np.log10(xs)),
@@ -206,7 +213,14 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
         a.set_minor_formatter(NullFormatter())
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     if legend and ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7, title="sampler (slope)", title_fontsize=7)
+        handles, names = ax.get_legend_handles_labels()
+        if unresolved:
+            from .study import RESOLVED_FACTOR
+
+            handles.append(Line2D([], [], marker="x", color="0.3", lw=0, markersize=5))
+            names.append(f"unresolved: MSE < {RESOLVED_FACTOR:g}x floor")
+        ax.legend(handles, names, fontsize=7, title="sampler (slope); labels: spp",
+                  title_fontsize=7)
 
 
 def error_figure(result: StudyResult, axis: str) -> Figure:

@@ -2,10 +2,16 @@
 
 ``write_report(result, directory)`` writes, each file atomically:
 
-* ``report.html`` - self-contained (CSS inline, every image a base64 PNG):
-  what was measured and how time was taken, the slope / efficiency table,
-  plots, the images side by side (render, error map, per-pixel standard
-  deviation) per scene, and the full table of cells;
+* ``report.html`` - self-contained (CSS and JavaScript inline, every image
+  embedded; works offline): a table of contents, what was measured and how
+  time was taken, the slope / efficiency tables, plots, per scene an
+  interactive image viewer (:mod:`mcrt.analysis.viewer`: samplers, sample
+  counts, the reference and five error views at native resolution, zoom, pan,
+  exposure, a pixel readout, crops of the hardest regions), and the full table
+  of cells; every table sorts by a click on its header;
+* ``exr/<scene>/*.exr`` - the reference and, per cell, the mean over seeds
+  (with its per-pixel variance) and the first seed's render
+  (:mod:`mcrt.analysis.viewer.files`), linked from the viewer;
 * ``summary.png`` - the main figure: MSE against render time per scene, over
   the error maps of every sampler on the first scene;
 * ``error_vs_spp.png`` and ``error_vs_time.png`` - log-log excess MSE against
@@ -48,6 +54,8 @@ from ..core.atomic import atomic_path, ensure_writable_dir
 from .plots import error_figure, images_figure, save_figure, summary_figure
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
 from .study.fields import CELL_COLUMNS, CSV_COLUMNS, DEFINITIONS, FIT_COLUMNS, Field
+from .viewer import HELP, viewer_assets, viewer_sections
+from .viewer.files import Links, write_exrs
 
 TIME_NOTE = (
     "Time is the wall time of one render as measured by render_film: tracing every pass, "
@@ -197,6 +205,7 @@ def _show(field: Field, record: dict[str, Any]) -> str:
 
 
 def _table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
+    cls = f"sortable {cls}".strip()
     head = "".join(f"<th>{h}</th>" for h in header)
     body = "\n".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
     return f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table>'
@@ -268,12 +277,35 @@ code{background:#f6f6f6;padding:0 3px}
 """
 
 
-def render_html(result: StudyResult, files: dict[str, Path]) -> str:
-    """The report page; ``files``: the figures written (see :func:`report_files`)."""
+def render_html(result: StudyResult, files: dict[str, Path],
+                links: Links | None = None) -> str:
+    """The report page; ``files``: the figures written (see :func:`report_files`),
+    ``links``: the EXR files written (:func:`~mcrt.analysis.viewer.files.write_exrs`)."""
     parts = (_html_intro(result, files) + _html_convergence(result, files)
-             + _html_images(result, files) + _html_references(result) + _html_cells(result)
-             + _html_definitions())
+             + _html_images(result, files, links or {}) + _html_references(result)
+             + _html_cells(result) + _html_definitions())
     return "\n".join(parts)
+
+
+#: The report's sections: (id, title), in order (the table of contents).
+SECTIONS = (("summary", "Summary"), ("convergence", "Convergence and efficiency"),
+            ("images", "Images"), ("references", "References"), ("cells", "All cells"),
+            ("definitions", "Definitions"))
+
+
+def _toc(result: StudyResult) -> str:
+    items = []
+    for key, title in SECTIONS:
+        sub = ""
+        if key == "images":
+            sub = "<ul>" + "".join(f"<li><a href='#viewer-{i}'>{html.escape(s)}</a></li>"
+                                   for i, s in enumerate(result.scenes)) + "</ul>"
+        items.append(f"<li><a href='#{key}'>{title}</a>{sub}</li>")
+    return f"<nav class='toc'><b>Contents</b><ul>{''.join(items)}</ul></nav>"
+
+
+def _h2(key: str) -> str:
+    return f"<h2 id='{key}'>{dict(SECTIONS)[key]}</h2>"
 
 
 def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
@@ -282,8 +314,8 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
     env = result.environment
     mark = " (partial)" if result.partial else ""
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-             f"<title>mcrt study: {html.escape(config.name)}{mark}</title><style>{_CSS}</style>"
-             f"</head><body>",
+             f"<title>mcrt study: {html.escape(config.name)}{mark}</title>"
+             f"<style>{_CSS}{viewer_assets()[0]}</style></head><body>",
              f"<h1>mcrt study: {html.escape(config.name)}{mark}</h1>"]
     if result.partial:
         parts.append(partial_banner(result))
@@ -303,6 +335,7 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
                      "(same configuration, scenes and versions); their times were taken then."
                      "</p>")
     parts.append(f"<p class='note'><b>Time.</b> {html.escape(TIME_NOTE)}</p>")
+    parts += [_toc(result), _h2("summary")]
     if "summary" in files:
         parts.append(f"<p><img alt='summary' src='{_png_data(files['summary'])}'></p>")
     return parts
@@ -310,12 +343,16 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
 
 def _html_convergence(result: StudyResult, files: dict[str, Path]) -> list[str]:
     """Slopes and efficiencies per scene, and the error plots."""
-    parts = ["<h2>Convergence and efficiency</h2>",
+    parts = [_h2("convergence"),
              "<p class='note'>Slopes are least-squares fits of log MSE (reference noise "
              "removed) against log spp and against log seconds, over every seed of the "
              "resolved cells (&plusmn; one standard error). Efficiency is "
              "1&nbsp;/&nbsp;(MSE &times; seconds): higher is better; a sampler twice as "
-             "efficient reaches the same error in half the time.</p>"]
+             "efficient reaches the same error in half the time. In the plots each point "
+             "is labelled with its sample count; a cross marks an <i>unresolved</i> cell: "
+             f"its MSE is below {RESOLVED_FACTOR:g}&times; the reference's own noise floor "
+             "(dotted line), so the reference cannot tell its error apart from zero; it "
+             "is drawn at max(excess MSE, floor) and left out of the fits.</p>"]
     for scene in result.scenes:
         parts.append(f"<h3>{html.escape(scene)}</h3>")
         parts.append(_table(summary_header(result), summary_rows(result, scene)))
@@ -325,21 +362,25 @@ def _html_convergence(result: StudyResult, files: dict[str, Path]) -> list[str]:
     return parts
 
 
-def _html_images(result: StudyResult, files: dict[str, Path]) -> list[str]:
-    """The image grid of every scene."""
+def _html_images(result: StudyResult, files: dict[str, Path], links: Links) -> list[str]:
+    """The image viewer of every scene."""
     config = result.config
-    parts = [f"<h2>Images at {config.image_spp} spp</h2>",
-             "<p class='note'>Per sampler: the render (seed "
-             f"{config.seeds[0]}), its luminance error against the reference (red: too "
-             "bright, blue: too dark; same scale for all samplers), and the standard "
-             f"deviation of each pixel's estimate across the {len(config.seeds)} seeds "
-             "(black where a sampler is deterministic, e.g. the uniform grid on a scene "
-             "where only the film position is sampled: its error is all bias).</p>"]
-    for scene in config.scenes:
-        key = f"images_{scene.name}"
-        if key in files:
-            parts.append(f"<p><img alt='{html.escape(scene.name)} images' "
-                         f"src='{_png_data(files[key])}'></p>")
+    sheets = ", ".join(f"<code>{html.escape(p.name)}</code>" for k, p in files.items()
+                       if k.startswith("images_"))
+    parts = [_h2("images"),
+             "<p class='note'>Per scene, every sampler at every sample count, the first seed "
+             f"({config.seeds[0]}) or the mean of the {len(config.seeds)} seeds, against the "
+             "reference: each pixel shown as a block of whole screen pixels, never resampled. "
+             "Error views are of luminance against the reference: signed (red: too bright, "
+             "blue: too dark), absolute, relative (|error| / sqrt(reference&sup2; + 0.01)), "
+             "FLIP (perceptual, 0-1, of the first seed) and the per-pixel variance across "
+             "seeds (zero where a sampler is deterministic, e.g. the uniform grid: its error "
+             "is all bias). One colour scale per view and sample count, shared by the "
+             "samplers (the 99th percentile; { and } halve or double it).</p>",
+             f"<p class='note'>{HELP}</p>"]
+    if sheets:
+        parts.append(f"<p class='note'>Static sheets at {config.image_spp} spp: {sheets}.</p>")
+    parts += viewer_sections(result, links)
     return parts
 
 
@@ -348,13 +389,13 @@ def _html_references(result: StudyResult) -> list[str]:
              _fmt(r.seconds) + (" (cached)" if r.cached else ""), _fmt(r.noise_floor),
              _fmt(r.rel_noise_floor)]
             for r in result.references.values()]
-    return ["<h2>References</h2>",
+    return [_h2("references"),
             _table(["scene", "pixels", "spp", "sampler", "seconds", "MSE floor",
                     "relMSE floor"], rows)]
 
 
 def _html_cells(result: StudyResult) -> list[str]:
-    return ["<h2>All cells</h2><p class='note'>Means over seeds &plusmn; sample standard "
+    return [_h2("cells") + "<p class='note'>Means over seeds &plusmn; sample standard "
             "deviation. Unresolved cells (MSE below "
             f"{RESOLVED_FACTOR:g}&times; the reference's noise floor) are marked "
             "and excluded from fits.</p>",
@@ -362,13 +403,13 @@ def _html_cells(result: StudyResult) -> list[str]:
 
 
 def _html_definitions() -> list[str]:
-    parts = ["<h2>Definitions</h2><dl>"]
+    parts = [_h2("definitions") + "<dl>"]
     for key, text in DEFINITIONS.items():
         parts.append(f"<dt><code>{html.escape(key)}</code></dt><dd>{html.escape(text)}</dd>")
     parts.append("</dl><p class='note'>Data: <code>results.csv</code> (one row per cell), "
                  "<code>results.json</code> (everything, with per-seed values); plots: "
                  "<code>error_vs_spp.png</code>, <code>error_vs_time.png</code>.</p>")
-    parts.append("</body></html>\n")
+    parts.append(f"<script>{viewer_assets()[1]}</script></body></html>\n")
     return parts
 def partial_banner(result: StudyResult) -> str:
     """The report's notice that the study is incomplete, and how to resume it."""
@@ -423,7 +464,8 @@ def write_report(result: StudyResult, directory: str | os.PathLike) -> dict[str,
                         dpi=110)
         else:
             files.pop(f"images_{scene.name}")
-    text = render_html(result, files)
+    links = write_exrs(result, directory)
+    text = render_html(result, files, links)
     with atomic_path(files["report"]) as tmp, open(tmp, "w", encoding="utf-8") as f:
         f.write(text)
     return files

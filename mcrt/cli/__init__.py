@@ -1,6 +1,7 @@
 """The ``mcrt`` command line: ``mcrt render``, ``mcrt demo``, ...
 
-User errors (bad arguments, missing or malformed scenes, unknown samplers,
+The global options (``-q``, ``--variant``, ``--version``) are accepted before
+or after the subcommand. User errors (bad arguments, missing or malformed scenes, unknown samplers,
 unwritable outputs) print one line, ``mcrt: error: ...``, and exit with status 2
 before any rendering starts; they never show a traceback.
 
@@ -13,10 +14,14 @@ module, so a render does not pay for the study and plotting modules; ``mcrt
 from __future__ import annotations
 
 import argparse
+import contextlib
+import difflib
 import importlib
 import logging
+import re
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any
 
 from ..errors import McrtError
 
@@ -37,12 +42,71 @@ _TOP_LEVEL_FLAGS = ("-q", "--quiet")
 #: The option choosing Mitsuba's variant (it takes a value).
 _VARIANT = "--variant"
 
+#: What ``mcrt --help`` says mcrt is, and its examples.
+DESCRIPTION = "mcrt: a distribution ray tracer for studying sampling, built on Mitsuba 3."
+EXAMPLES = ("mcrt demo", "mcrt render scenes/cornell_box.xml --sampler poisson_disk --spp 64",
+            "mcrt compare configs/quick.toml -q", "mcrt render --help")
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, but lines indented by two spaces (examples) are kept
+    as they are; the other lines of a description or epilog are wrapped."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        lines: list[str] = []
+        for paragraph in text.split("\n"):
+            if paragraph.startswith("  ") or not paragraph.strip():
+                lines.append(indent + paragraph)
+            else:
+                lines.append(super()._fill_text(paragraph, width, indent))
+        return "\n".join(lines)
+
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (argparse's default prints the usage too)."""
+    """argparse with one-line errors (argparse's default prints the usage too),
+    "did you mean" for a mistyped subcommand, and help that keeps examples."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse API
+        typo = re.match(r"argument COMMAND: invalid choice: '([^']*)'", message)
+        if typo:
+            close = difflib.get_close_matches(typo.group(1), COMMANDS, n=1)
+            message += f"; did you mean {close[0]!r}?" if close else ""
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def version_text() -> str:
+    """``mcrt --version``: mcrt's version and those of Mitsuba, Dr.Jit and Python."""
+    import platform
+
+    import drjit
+    import mitsuba
+
+    from .. import __version__
+
+    def version(module: object) -> str:
+        return str(getattr(module, "__version__", "?"))  # not in the type stubs
+
+    return (f"mcrt {__version__} (Mitsuba {version(mitsuba)}, Dr.Jit {version(drjit)}, "
+            f"Python {platform.python_version()})")
+
+
+def _add_global_options(parser: argparse.ArgumentParser, after_command: bool) -> None:
+    """``-q``, ``--variant`` and ``--version`` on ``mcrt`` itself and (``after_command``)
+    on each subcommand, where they must not replace a value given before it."""
+    group = parser.add_argument_group("global options") if after_command else parser
+    unset: Any = argparse.SUPPRESS  # after the command: no value unless given there
+    group.add_argument(*_TOP_LEVEL_FLAGS, action="store_true",
+                       default=unset if after_command else False,
+                       help="no progress bars and no notes (results and errors still print)")
+    group.add_argument(_VARIANT, metavar="NAME", default=unset if after_command else None,
+                       help="Mitsuba variant to render with (default llvm_ad_rgb; also "
+                            "llvm_ad_spectral, llvm_ad_mono, cuda_ad_* where a GPU exists)")
+    group.add_argument("--version", action="version", version=version_text(),
+                       help="print the versions of mcrt, Mitsuba and Dr.Jit and exit")
 
 
 def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
@@ -50,16 +114,15 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
 
     Imports the module of each subcommand it adds.
     """
-    parser = _Parser(prog="mcrt", description=(__doc__ or "mcrt").splitlines()[0])
-    parser.add_argument(*_TOP_LEVEL_FLAGS, action="store_true", help="no progress bars or notes")
-    parser.add_argument(_VARIANT, metavar="NAME", default=None,
-                        help="Mitsuba variant to render with (default llvm_ad_rgb; also "
-                             "llvm_ad_spectral, llvm_ad_mono, cuda_ad_* where a GPU exists)")
+    parser = _Parser(prog="mcrt", description=DESCRIPTION,
+                     epilog="examples:\n" + "\n".join(f"  {e}" for e in EXAMPLES))
+    _add_global_options(parser, after_command=False)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     subparsers.required = True
     for name in COMMANDS if commands is None else commands:
         module = importlib.import_module(f"{__name__}.{COMMANDS[name]}")
         module.add_parser(subparsers)
+        _add_global_options(subparsers.choices[name], after_command=True)
     return parser
 
 
@@ -95,13 +158,40 @@ def _use_variant(name: str | None) -> None:
         register()
 
 
-def _configure_logging(quiet: bool) -> None:
+@contextlib.contextmanager
+def _configure_logging(quiet: bool) -> Iterator[None]:
+    """Notes (mcrt's log records) on stderr as ``mcrt: note: ...``; ``-q`` silences
+    them all, and Mitsuba's own warnings too (errors still print). For the
+    command only: the ``mcrt`` logger is restored afterwards (``main`` may be
+    called from Python)."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("mcrt: note: %(message)s"))
     logger = logging.getLogger("mcrt")
+    saved = logger.handlers[:], logger.level, logger.propagate
     logger.handlers[:] = [handler]
-    logger.setLevel(logging.WARNING if quiet else logging.INFO)
+    logger.setLevel(logging.ERROR if quiet else logging.INFO)
     logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.handlers[:], level, logger.propagate = saved
+        logger.setLevel(level)
+
+
+@contextlib.contextmanager
+def _mitsuba_log(quiet: bool) -> Iterator[None]:
+    """With ``-q``, Mitsuba's own warnings are silenced too (for the command only)."""
+    if not quiet:
+        yield
+        return
+    import mitsuba as mi
+
+    level = mi.log_level()
+    mi.set_log_level(mi.LogLevel.Error)
+    try:
+        yield
+    finally:
+        mi.set_log_level(level)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -111,13 +201,19 @@ def main(argv: list[str] | None = None) -> int:
     # A parser with just the one subcommand parses its arguments exactly as the
     # full parser would (same prog, usage and messages).
     args = build_parser(None if command is None else [command]).parse_args(argv)
-    _configure_logging(args.quiet)
     from ..core.engine import termination_as_interrupt
 
     try:
-        with termination_as_interrupt():  # SIGTERM/SIGHUP: what Ctrl-C does
+        # SIGTERM/SIGHUP: what Ctrl-C does
+        with _configure_logging(args.quiet), termination_as_interrupt(), \
+                _mitsuba_log(args.quiet):
             _use_variant(args.variant)
-            return int(args.run(args) or 0)
+            code = int(args.run(args) or 0)
+            sys.stdout.flush()  # a closed pipe shows here, not at exit
+            return code
+    except BrokenPipeError:  # e.g. `mcrt plan ... | head`: the reader left, nothing to report
+        _silence_stdout()
+        return 141
     except McrtError as error:
         print(f"mcrt: error: {_one_line(error)}", file=sys.stderr)
         return 2
@@ -134,9 +230,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("mcrt: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:  # e.g. `mcrt ... | head`: the reader left, nothing to report
-        _silence_stdout()
-        return 141
 
 
 def _one_line(error: Exception) -> str:

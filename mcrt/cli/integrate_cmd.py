@@ -12,7 +12,7 @@ from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
 from . import _common
-from ._common import ensure_writable_dir, non_negative_int, positive_int
+from ._common import ensure_writable_dir, examples, non_negative_int, positive_int
 
 DEFAULT_SAMPLERS = ("independent", "jittered", "poisson_disk")
 
@@ -35,7 +35,9 @@ def add_parser(commands) -> None:
                     "giving the MSE and its uncertainty. Prints a table and the fitted slope "
                     "of MSE against N per sampler, and writes integrate_<INTEGRAND>.png/.csv/"
                     ".json to DIR. pi: 4 x quarter-disc indicator (estimates pi); disk: "
-                    "indicator of a disc (an edge); gaussian: a smooth bump.")
+                    "indicator of a disc (an edge); gaussian: a smooth bump.",
+        epilog=examples("mcrt integrate disk",
+                        "mcrt integrate gaussian --sampler jittered,sobol --max-n 16384"))
     p.add_argument("integrand", choices=tuple(INTEGRANDS), metavar="INTEGRAND",
                    help=f"one of {', '.join(INTEGRANDS)}")
     p.add_argument("--sampler", default=",".join(DEFAULT_SAMPLERS), metavar="NAME[,NAME...]",

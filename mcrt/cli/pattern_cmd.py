@@ -19,7 +19,7 @@ from ..samplers import ALL_SAMPLERS, BUILTIN_SAMPLERS
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets
 from ..samplers.poisson_tables import MAX_POINTS
 from . import _common
-from ._common import ensure_writable_dir, non_negative_int, positive_int
+from ._common import ensure_writable_dir, examples, non_negative_int, positive_int
 
 log = logging.getLogger("mcrt.pattern")
 
@@ -49,7 +49,10 @@ def add_parser(commands) -> None:
                     "spectrum with frequencies in units of 1 / mean spacing (f = |k| / sqrt(N)), "
                     "anisotropy in dB, L2-star and centered discrepancy, and rho = d_min / d_hex. "
                     "Writes points.png, spectrum.png, radial.png, overview.png, radial.csv and "
-                    "summary.json to DIR and prints the summary.")
+                    "summary.json to DIR and prints the summary.",
+        epilog=examples("mcrt pattern poisson_disk --spp 256",
+                        "mcrt pattern jittered --param jitter=0.5 -o out/pattern_half_jitter",
+                        "mcrt pattern sobol --spp 64 --dimension 2"))
     p.add_argument("sampler", metavar="NAME", help=f"sampler: one of {', '.join(ALL_SAMPLERS)}")
     p.add_argument("--spp", type=positive_int, default=256, metavar="N",
                    help="samples per pixel (default 256; samplers may round it)")

@@ -9,7 +9,7 @@ from ..core.sampling import check_sampler_name, make_sampler
 from ..render.plan import EFFECTS, parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS
-from ._common import non_negative_int, positive_int
+from ._common import examples, non_negative_int, positive_int
 
 
 def add_effect_argument(parser: argparse.ArgumentParser) -> None:
@@ -24,9 +24,11 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p = commands.add_parser(
         "plan", help="show which distribution effects a scene gets and how they are sampled",
         description="Analyse SCENE.xml (camera aperture, emitters, BSDF roughness, moving "
-                    "shapes, indirect light) and print the render plan `mcrt render` follows: "
+                    "shapes, indirect light) and print the render plan that mcrt render follows: "
                     "effects on/off and why, integrator and depth, camera, shutter and "
-                    "sub-frames, and the sample dimensions of each camera path.")
+                    "sub-frames, and the sample dimensions of each camera path.",
+        epilog=examples("mcrt plan scenes/effects/dof.xml",
+                        "mcrt plan scenes/cornell_box.xml --effect indirect=off --json"))
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     add_effect_argument(p)
     p.add_argument("--sampler", metavar="NAME",

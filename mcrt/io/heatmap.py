@@ -25,13 +25,59 @@ def heatmap(spp: np.ndarray, lo: float | None = None, hi: float | None = None,
     return (rgba[..., :3] * 255.0 + 0.5).astype(np.uint8)
 
 
+#: Size the heat map of a small image is enlarged to (by a whole factor, each
+#: pixel a block of equal pixels: never interpolated), in screen pixels.
+MIN_DISPLAY_PX = 400
+
+#: Margins of the figure around the map, in pixels: left, right (the colour bar),
+#: top (the title), bottom.
+MARGINS = (12, 110, 42, 12)
+
+
+def display_scale(width: int, height: int) -> int:
+    """Whole enlargement factor of a ``width`` x ``height`` map (at least 1)."""
+    return max(1, MIN_DISPLAY_PX // max(width, height, 1))
+
+
+def default_title(spp: np.ndarray) -> str:
+    """What the sample counts were: their mean and range."""
+    spp = np.asarray(spp)
+    return (f"samples per pixel: mean {float(spp.mean()):.1f}, "
+            f"min {int(spp.min())}, max {int(spp.max())}")
+
+
 def write_heatmap(path, spp: np.ndarray, lo: float | None = None,
-                  hi: float | None = None) -> None:
-    """Write :func:`heatmap` as a PNG, atomically."""
-    from PIL import Image
+                  hi: float | None = None, title: str | None = None,
+                  colormap: str = "inferno") -> None:
+    """Write the heat map of ``spp`` as a PNG, atomically: the map at native
+    resolution (small images enlarged by a whole factor, nearest neighbour), a
+    ``title`` (default :func:`default_title`) and a log-scale colour bar from
+    ``lo`` to ``hi`` (default: the counts' range)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import LogNorm
+    from matplotlib.figure import Figure
 
+    spp = np.asarray(spp, dtype=np.float64)
+    lo = max(float(spp.min()) if lo is None else float(lo), 1.0)
+    hi = max(float(spp.max()) if hi is None else float(hi), lo * 1.0001)
+    height, width = spp.shape[:2]
+    k = display_scale(width, height)
+    left, right, top, bottom = MARGINS
+    fig_w, fig_h = width * k + left + right, height * k + top + bottom
+    dpi = 100
+    fig = Figure(figsize=(fig_w / dpi, fig_h / dpi), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((left / fig_w, bottom / fig_h, width * k / fig_w, height * k / fig_h))
+    image = ax.imshow(np.maximum(spp, lo), cmap=colormap, norm=LogNorm(vmin=lo, vmax=hi),
+                      interpolation="nearest")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title(title if title is not None else default_title(spp), fontsize=9)
+    bar = fig.add_axes(((left + width * k + 14) / fig_w, bottom / fig_h, 14 / fig_w,
+                        height * k / fig_h))
+    fig.colorbar(image, cax=bar).set_label("samples per pixel (log scale)", fontsize=9)
     with atomic_path(path) as tmp:
-        Image.fromarray(heatmap(spp, lo, hi), mode="RGB").save(tmp, format="PNG")
+        fig.savefig(tmp, format="png", dpi=dpi)
 
 
-__all__ = ["heatmap", "write_heatmap"]
+__all__ = ["default_title", "display_scale", "heatmap", "write_heatmap"]

@@ -115,11 +115,14 @@ References
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from pathlib import Path
 
 import numpy as np
+
+log = logging.getLogger("mcrt.poisson")
 
 __all__ = [
     "MAX_POINTS", "RHO_GUARANTEE", "RHO_TARGET", "TABLE_SEED", "VERSION",
@@ -605,6 +608,8 @@ def load_tables(n: int, *, disk_cache: bool = True) -> np.ndarray:
         path = cache_path(n) if disk_cache else None
         tables = _read(path, n) if path is not None else None
         if tables is None:
+            log.info("building the poisson_disk tables for %d samples per pixel (once: they are "
+                     "cached%s)", n, f" in {path}" if path is not None else " in memory")
             points = generate(n, n_tables(n), TABLE_SEED)  # verified, float32 values
             tables = points.astype(np.float32)
             if not np.array_equal(tables, points) and not _valid(tables, n):

@@ -10,6 +10,9 @@ A study is described by a TOML file (see ``configs/quick.toml``)::
     aliasing_draws = 32                 # optional: sign-flip draws of the aliasing null
     samplers = ["uniform_grid", "jittered",
                 {name = "jittered", label = "jitter0.5", params = {jitter = 0.5}}]
+    filters = ["box", "gaussian"]       # optional axis: each scene once per film filter
+                                        # (cells' scene "<name>~<filter>", filter-aware
+                                        # references; see configs/filters.toml)
 
     [reference]                         # high-spp image every render is compared with
     spp = 4096
@@ -86,7 +89,7 @@ from .config import (
 from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, Column, Field
 from .runner import ReferenceInfo, StudyInterrupted, StudyResult, environment, run_study
 from .store import STATE_DIR, STATE_FORMAT, StudyState, reference_fingerprint, study_key
-from .summary import CellImages, cell_images, fit_sampler, summarise_cell
+from .summary import CellImages, CellRenders, cell_images, cell_renders, fit_sampler, summarise_cell
 
 #: The summariser under its former private name (tests/test_atomic_writes.py builds
 #: a synthetic result with it).
@@ -102,8 +105,8 @@ def _fit_sampler(config: StudyConfig, scene: str, sampler: str,
 
 __all__ = ["CELL_FIELDS", "FIT_FIELDS", "MAX_NAME_BYTES", "MIN_REFERENCE_FACTOR",
            "RESOLVED_FACTOR", "STATE_DIR", "STATE_FORMAT", "STUDY_NULL_DRAWS", "WARMUP_SEED",
-           "CellImages", "Column", "ConfigError", "Field", "ReferenceInfo", "ReferenceSpec",
-           "SamplerSpec", "SceneSpec", "StudyConfig", "StudyInterrupted", "StudyResult",
-           "StudyState", "cell_images", "cell_keys", "check_config", "environment",
-           "fit_sampler", "load_config", "parse_config", "reference_fingerprint", "run_study",
-           "study_key", "summarise_cell"]
+           "CellImages", "CellRenders", "Column", "ConfigError", "Field", "ReferenceInfo",
+           "ReferenceSpec", "SamplerSpec", "SceneSpec", "StudyConfig", "StudyInterrupted",
+           "StudyResult", "StudyState", "cell_images", "cell_keys", "cell_renders",
+           "check_config", "environment", "fit_sampler", "load_config", "parse_config",
+           "reference_fingerprint", "run_study", "study_key", "summarise_cell"]

@@ -19,11 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from ...core.job import Checkpoint, content_key, scene_digest
+from ...core.job import Checkpoint, content_key
+from ...core.scene_files import scene_digest
 from ...errors import McrtError
 from .config import StudyConfig, cell_keys
 from .fields import plain
-from .summary import CellImages
+from .summary import CellImages, CellRenders
 
 log = logging.getLogger("mcrt.compare")
 
@@ -65,7 +66,8 @@ class StudyState:
 
     Lives in ``<report dir>/.mcrt-resume/``: ``state.npz`` (the reference
     fingerprints and every finished cell with its per-seed values) and one
-    ``images_*.npz`` per (scene, sampler) with the report's images, each a
+    ``images_*.npz`` per (scene, sampler) with the report's images and one
+    ``renders_*.npz`` per cell with its viewer images, each a
     :class:`~mcrt.core.job.Checkpoint` (key and checksum checked on load; a
     damaged file is set aside and its cells measured again). The images are
     written before the state that refers to them, so a kill at any moment leaves
@@ -127,6 +129,18 @@ class StudyState:
         return CellImages(render=found.arrays["render"], error=found.arrays["error"],
                           std=found.arrays["std"])
 
+    def _renders_path(self, scene: str, label: str, spp: int) -> Path:
+        name = hashlib.sha256(f"{scene}\0{label}\0{spp}".encode()).hexdigest()[:16]
+        return self.directory / f"renders_{name}.npz"
+
+    def renders(self, scene: str, label: str, spp: int) -> CellRenders | None:
+        """The saved viewer images of a cell, or None if missing or damaged."""
+        found = Checkpoint.load(self._renders_path(scene, label, spp), self.key)
+        if found is None or {"mean", "first", "variance"} - set(found.arrays):
+            return None
+        return CellRenders(mean=found.arrays["mean"], first=found.arrays["first"],
+                           variance=found.arrays["variance"])
+
     def check_reference(self, scene: str, fingerprint: str) -> None:
         """Forget the cells of ``scene`` if its reference changed since they were measured."""
         old = self.references.get(scene)
@@ -139,7 +153,8 @@ class StudyState:
                 del self.cells[key]
         self.references[scene] = fingerprint
 
-    def add(self, cell: dict[str, Any], images: CellImages | None, seconds: float) -> None:
+    def add(self, cell: dict[str, Any], images: CellImages | None, seconds: float,
+            renders: CellRenders | None = None) -> None:
         """Record a finished cell (and its images) and save; a write failure
         (disk full, ...) is logged once and turns saving off, the study goes on."""
         key = (cell["scene"], cell["sampler"], cell["spp_requested"])
@@ -151,6 +166,13 @@ class StudyState:
                 Checkpoint({"scene": cell["scene"], "sampler": cell["sampler"]},
                            {"render": images.render, "error": images.error, "std": images.std}
                            ).save(self._image_path(cell["scene"], cell["sampler"]), self.key)
+            if renders is not None:
+                Checkpoint({"scene": cell["scene"], "sampler": cell["sampler"],
+                            "spp": cell["spp_requested"]},
+                           {"mean": renders.mean, "first": renders.first,
+                            "variance": renders.variance}
+                           ).save(self._renders_path(cell["scene"], cell["sampler"],
+                                                     cell["spp_requested"]), self.key)
             self.save(seconds)
         except (McrtError, OSError) as error:
             log.warning("cannot save the resume state (%s); the study goes on, but an "

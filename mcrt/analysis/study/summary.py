@@ -30,6 +30,22 @@ class CellImages:
     std: np.ndarray              # (H, W) per-pixel sd of the estimate across seeds
 
 
+@dataclass
+class CellRenders:
+    """Images of one (scene, sampler, spp) cell, for the report's viewer and EXR files."""
+
+    mean: np.ndarray             # (H, W, 3) float32 mean over seeds (NaN/Inf samples left out)
+    first: np.ndarray            # (H, W, 3) float32 render of the first seed, as rendered
+    variance: np.ndarray         # (H, W) float32 per-pixel variance across seeds (channel mean)
+
+
+def cell_renders(renders: list[np.ndarray], stats: PixelStats) -> CellRenders:
+    """A cell's images for the viewer: mean and variance over seeds, the first seed."""
+    return CellRenders(mean=np.asarray(stats.mean, dtype=np.float32),
+                       first=np.asarray(renders[0], dtype=np.float32),
+                       variance=variance_map(stats.variance).astype(np.float32))
+
+
 def _mean_sd(values: list[float]) -> tuple[float, float]:
     a = np.asarray(values, dtype=np.float64)
     return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
@@ -48,9 +64,10 @@ def _verdict(ratio_z: float, peak_z: float) -> str:
 
 def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[dict[str, Any]],
                    stats: PixelStats, ref_mean: np.ndarray, ref_var: np.ndarray,
-                   floor: float, k: int) -> dict[str, Any]:
+                   floor: float, k: int, rfilter: str = "") -> dict[str, Any]:
     """The cell of (scene, sampler, spp) from its per-seed records and the pixel
-    moments of its ``k`` renders, against a reference (mean, variance, noise floor)."""
+    moments of its ``k`` renders, against a reference (mean, variance, noise floor);
+    ``rfilter``: the film filter of a ``filters`` study ("" otherwise)."""
     seconds, seconds_sd = _mean_sd([r["seconds"] for r in per_seed])
     mse_mean, mse_sd = _mean_sd([r["mse"] for r in per_seed])
     rel_mean, rel_sd = _mean_sd([r["rel_mse"] for r in per_seed])
@@ -61,7 +78,7 @@ def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[di
     b = bias(stats.mean, ref_mean, image_variance=stats.variance / k, reference_variance=ref_var)
     ratio_z, peak_z = _mean(per_seed, "ratio_z"), _mean(per_seed, "peak_z")
     return record(CELL_FIELDS, {
-        "scene": scene, "sampler": sampler.label, "plugin": sampler.name,
+        "scene": scene, "filter": rfilter, "sampler": sampler.label, "plugin": sampler.name,
         "params": dict(sampler.params), "spp_requested": spp,
         "spp": int(per_seed[0]["spp"]), "seeds": [r["seed"] for r in per_seed],
         "seconds": seconds, "seconds_sd": seconds_sd,

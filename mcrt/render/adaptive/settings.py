@@ -10,7 +10,7 @@ declarations through :data:`PARAMETERS`:
   (:mod:`mcrt.render.adaptive_integrator`);
 * ``mcrt render --adaptive`` derives its flags, help texts and defaults
   (:mod:`mcrt.cli._adaptive_args`);
-* the README's parameter table is compared with them by the tests.
+* the parameter table of docs/adaptive.md is compared with them by the tests.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ class Param:
     #: Whether ``low`` / ``high`` themselves are excluded (integers: never).
     low_open: bool
     high_open: bool
-    #: One line, lower case, no final full stop (command-line help, README table).
+    #: One line, lower case, no final full stop (command-line help, the table of docs/adaptive.md).
     help: str
     #: More for the plugin's documentation (RST), or "".
     details: str

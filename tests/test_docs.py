@@ -1,0 +1,65 @@
+"""The documentation's examples run: every ``pycon`` block of docs/*.md is a doctest."""
+
+from __future__ import annotations
+
+import doctest
+import re
+
+import pytest
+from conftest import ROOT
+
+DOCS = ROOT / "docs"
+BLOCK = re.compile(r"^```pycon\n(.*?)^```", re.S | re.M)
+
+
+def pycon_blocks(text: str) -> str:
+    """The ``pycon`` code blocks of a markdown page, one after the other."""
+    return "\n".join(block for block in BLOCK.findall(text))
+
+
+def _pages() -> list[str]:
+    return sorted(p.name for p in DOCS.glob("*.md") if "```pycon" in p.read_text())
+
+
+def test_pycon_blocks_are_found():
+    text = "x\n```pycon\n>>> 1 + 1\n2\n\n```\ny\n```pycon\n>>> 3\n3\n```\n"
+    assert pycon_blocks(text) == ">>> 1 + 1\n2\n\n\n>>> 3\n3\n"
+    assert "python-api.md" in _pages()
+
+
+@pytest.mark.parametrize("page", _pages())
+def test_doc_examples(page, monkeypatch, tmp_path):
+    monkeypatch.chdir(ROOT)  # the examples name files relative to the repository
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    text = pycon_blocks((DOCS / page).read_text())
+    parser = doctest.DocTestParser()
+    test = parser.get_doctest(text, {}, page, str(DOCS / page), 0)
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    report: list[str] = []
+    runner.run(test, out=report.append)
+    assert runner.tries > 0 and runner.failures == 0, "\n".join(report)
+
+
+def test_readme_is_short_and_its_commands_table_is_the_parser():
+    """README.md stays an overview (the reference is in docs/), and its table of
+    commands says what each subcommand's own declaration says, in the same order."""
+    import argparse
+
+    from mcrt.cli import COMMANDS, build_parser
+
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) <= 200
+    assert "bash scripts/demo.sh" in readme and "bash scripts/test.sh" in readme
+    rows = re.findall(r"^\| `mcrt (\w+)` \| (.*?) \|", readme, flags=re.M)
+    action = next(a for a in build_parser()._actions
+                  if isinstance(a, argparse._SubParsersAction))
+    declared = [(c.dest, c.help) for c in action._choices_actions]
+    assert rows == declared and [name for name, _ in rows] == list(COMMANDS)
+
+
+@pytest.mark.parametrize("page", ["README.md", *sorted(p.name for p in DOCS.glob("*.md"))])
+def test_relative_links_and_images_exist(page):
+    path = ROOT / page if page == "README.md" else DOCS / page
+    for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", path.read_text()):
+        if "://" not in target:
+            assert (path.parent / target).exists(), f"{page}: {target}"
