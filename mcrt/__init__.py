@@ -3,7 +3,7 @@
 Importing the package activates the ``llvm_ad_rgb`` variant when none is active
 (after checking that Dr.Jit has a usable libLLVM) and registers mcrt's plugins
 (samplers ``uniform_grid``, ``jittered``, ``poisson_disk``; integrators
-``distribution`` and ``adaptive``), so ``mi.load_dict({'type': 'jittered', ...})``
+``distribution``, ``adaptive`` and ``multisample``), so ``mi.load_dict({'type': 'jittered', ...})``
 works right away.
 Call :func:`register` again after switching variants.
 
@@ -45,6 +45,16 @@ def _adaptive_integrator(props: mi.Properties) -> mi.Integrator:
     return integrator
 
 
+def _multisample_integrator(props: mi.Properties) -> mi.Integrator:
+    """Mitsuba's constructor for ``multisample`` until it is first used (as
+    :func:`_adaptive_integrator`: numpy is imported then, not here)."""
+    from .render import multisample_integrator
+
+    multisample_integrator.register()
+    integrator: mi.Integrator = multisample_integrator.MultisampleIntegrator(props)
+    return integrator
+
+
 def register() -> None:
     """Register mcrt's plugins with the active Mitsuba variant."""
     import mitsuba as mi
@@ -53,6 +63,7 @@ def register() -> None:
     samplers.register()
     distribution.register()
     mi.register_integrator("adaptive", _adaptive_integrator)
+    mi.register_integrator("multisample", _multisample_integrator)
 
 
 register()

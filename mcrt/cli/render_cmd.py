@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shlex
 import shutil
 from dataclasses import asdict
 from pathlib import Path
@@ -19,11 +20,12 @@ from pathlib import Path
 from .. import __version__
 from ..cache import cache_dir
 from ..core.atomic import remedy
-from ..core.job import CheckpointStore, Interrupted, content_key, scene_digest
+from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
+from ..core.scene_files import scene_digest
 from ..core.trace import film_grid_size
 from ..errors import McrtError
 from ..io import write_exr, write_png
@@ -36,7 +38,9 @@ from . import _adaptive_args
 from ._common import (
     check_output_files,
     checkpoint_interval,
+    examples,
     non_negative_int,
+    note_first_run,
     output_stem,
     positive_int,
 )
@@ -50,7 +54,10 @@ def add_parser(commands) -> None:
         "render", help="render a scene with a chosen sampler",
         description="Render SCENE.xml and write OUT.exr (float32) and OUT.png (sRGB preview; "
                     "linear values above 1 are clipped). Ctrl-C writes the passes finished so "
-                    "far (marked partial); the same command then resumes.")
+                    "far (marked partial); the same command then resumes.",
+        epilog=examples("mcrt render scenes/cornell_box.xml --sampler poisson_disk --spp 64",
+                        "mcrt render scenes/cornell_box.xml -D res=128 -o out/renders/",
+                        "mcrt render scenes/edges.xml --adaptive --threshold 0.05"))
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     p.add_argument("--sampler", metavar="NAME",
                    help=f"sampler plugin (default: the scene's); one of {', '.join(ALL_SAMPLERS)}")
@@ -63,8 +70,13 @@ def add_parser(commands) -> None:
     p.add_argument("-D", dest="defines", action="append", metavar="KEY=VALUE",
                    help="set a scene parameter ($KEY in the XML); repeatable")
     p.add_argument("-o", "--output", metavar="OUT",
-                   help="output path without extension (default: <scene>_<sampler>)")
+                   help="output path without extension, or a directory to write into "
+                        "(default: out/<scene>_<sampler>)")
     add_effect_argument(p)  # the render follows the scene's plan (see `mcrt plan`)
+    p.add_argument("--multisample", action="store_true",
+                   help="multisampling: trace visibility at every sample but shade once per "
+                        "surface per pixel (nests the scene's integrator in multisample; "
+                        "see docs/multisampling.md)")
     _adaptive_args.add_cli_arguments(p)
     p.set_defaults(run=run)
 
@@ -76,7 +88,12 @@ def run(args: argparse.Namespace) -> int:
     params = parse_defines(args.defines)
     sampler_params = parse_sampler_params(args.sampler_params, args.sampler)
     overrides = parse_effect_overrides(args.effect)
-    planned = plan_scene(args.scene, params, overrides)
+    multisample = getattr(args, "multisample", False)
+    if multisample and getattr(args, "adaptive", False):
+        raise McrtError("--multisample and --adaptive cannot be combined (multisampling shares "
+                        "shading among a pixel's samples of one whole-image pass)")
+    planned = plan_scene(args.scene, params, overrides,
+                         wrap="multisample" if multisample else None)
     scene = planned.scene
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
@@ -89,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
     check_free_space(exr_path.parent, scene)
     _check_memory(scene, adaptive_settings)
+    note_first_run()
     metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
     if adaptive_settings is not None:
         metadata["plan"] = planned.plan.to_json()
@@ -103,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
                      passes, sampler_params=metadata["sampler_params"])
-    store = CheckpointStore(_resume_paths(exr_path, key), key)
+    store = CheckpointStore(_resume_paths(exr_path, key), key, _job(args, name, spp, stem))
     state = store.load()
     if state is not None:
         log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
@@ -137,8 +155,20 @@ def run(args: argparse.Namespace) -> int:
     if result.nonfinite_samples:
         print(f"non-finite samples: {result.nonfinite_samples} (NaN/Inf, left out of the image; "
               f"{int((result.nonfinite > 0).sum())} pixels affected)")
+    _print_shading_counts(scene)
     print(f"wrote {exr_path} and {png_path}")
     return 0
+
+
+def _print_shading_counts(scene) -> None:
+    """What a ``multisample`` integrator shaded (nothing for other integrators)."""
+    counts = getattr(scene.integrator(), "counts", None)
+    if counts is None or not counts.samples:
+        return
+    per_pass = sorted(set(counts.samples_per_pixel))
+    print(f"multisample: {counts.evaluations} shading evaluations for {counts.samples} "
+          f"samples ({counts.per_sample:.4f} per sample), visibility samples shared per pixel "
+          f"and pass: {', '.join(map(str, per_pass))}")
 
 
 def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) -> int:
@@ -153,6 +183,16 @@ def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) ->
     if kept is not None:
         print(f"checkpoint {kept}: run the same command again to resume")
     return 130
+
+
+def _job(args: argparse.Namespace, sampler: str, spp: int, stem: Path) -> str:
+    """The render in words, as a command line (recorded with its checkpoints)."""
+    words = ["mcrt", "render", str(args.scene), "--sampler", sampler, "--spp", str(spp),
+             "--seed", str(args.seed)]
+    words += [w for d in args.defines or [] for w in ("-D", d)]
+    words += [w for e in args.effect or [] for w in ("--effect", e)]
+    words += ["--adaptive"] if getattr(args, "adaptive", False) else []
+    return shlex.join([*words, "-o", str(stem)])
 
 
 def render_metadata(scene: str, params: dict[str, str], sampler, seed: int, plan) -> dict:
@@ -220,7 +260,8 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     RGB, variance, standard error and sample counts, and a PNG heat map of the
     sample counts. Ctrl-C and resume work as for fixed-spp renders."""
     exr_path, png_path, heat_path = paths
-    store = CheckpointStore(_resume_paths(exr_path, key), key)
+    store = CheckpointStore(_resume_paths(exr_path, key), key,
+                            _job(args, name, settings.max_spp, exr_path.with_suffix("")))
     state = store.load()
     if state is not None:
         log.info("resuming after adaptive pass %d", state.meta["next_pass"])

@@ -34,7 +34,11 @@ MIN_REFERENCE_FACTOR = 4
 MAX_NAME_BYTES = 200
 
 _TOP_KEYS = {"name", "description", "spp", "seeds", "image_spp", "aliasing_draws", "samplers",
-             "reference", "scenes"}
+             "reference", "scenes", "filters"}
+#: Mitsuba's reconstruction filters, the values of a study's ``filters`` axis.
+FILTERS = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
+#: Joins a scene's name and a filter into the scene name of a ``filters`` study's cells.
+FILTER_SEPARATOR = "~"
 _REQUIRED_KEYS = ("spp", "seeds", "samplers", "reference", "scenes")
 _REFERENCE_KEYS = {"spp", "sampler", "seed", "spp_per_pass"}
 _SCENE_KEYS = {"path", "name", "params"}
@@ -60,6 +64,8 @@ class SceneSpec:
     name: str
     path: Path
     params: dict[str, str]
+    #: the film's filter set by the study's ``filters`` axis ("": the scene's own)
+    rfilter: str = ""
 
 
 @dataclass(frozen=True)
@@ -89,6 +95,8 @@ class StudyConfig:
     image_spp: int
     aliasing_draws: int = STUDY_NULL_DRAWS
     path: Path | None = None
+    #: the ``filters`` axis (empty: every scene renders with its own filter)
+    filters: tuple[str, ...] = ()
     #: effective sample count of every (sampler label, requested spp), filled by validation
     effective_spp: dict[tuple[str, int], int] = field(default_factory=dict)
 
@@ -110,8 +118,9 @@ class StudyConfig:
             "reference": {"spp": self.reference.spp, "sampler": self.reference.sampler,
                           "seed": self.reference.seed,
                           "spp_per_pass": self.reference.spp_per_pass},
-            "scenes": [{"name": s.name, "path": str(s.path), "params": s.params}
-                       for s in self.scenes],
+            "scenes": [{"name": s.name, "path": str(s.path), "params": s.params,
+                        "filter": s.rfilter} for s in self.scenes],
+            "filters": list(self.filters),
             "samplers": [{"name": s.name, "label": s.label, "params": s.params}
                          for s in self.samplers],
         }
@@ -207,12 +216,14 @@ def parse_config(data: dict[str, Any], base_dir: Path | None = None, name: str =
     draws = _int(data.get("aliasing_draws", STUDY_NULL_DRAWS), "aliasing_draws", 2, 100001)
     samplers = _parse_samplers(data["samplers"])
     reference = _parse_reference(data["reference"], max(spp))
-    scenes = _parse_scenes(data["scenes"], base_dir)
+    filters = _parse_filters(data.get("filters"))
+    scenes = _with_filters(_parse_scenes(data["scenes"], base_dir), filters)
     return StudyConfig(
         name=_study_name(data.get("name", name)),
         description=_description(data.get("description", "")),
         scenes=scenes, samplers=samplers, spp=spp, seeds=seeds,
-        reference=reference, image_spp=image_spp, aliasing_draws=draws, path=path)
+        reference=reference, image_spp=image_spp, aliasing_draws=draws, path=path,
+        filters=filters)
 
 
 def _parse_spp(value: Any) -> tuple[int, ...]:
@@ -309,6 +320,32 @@ def _parse_scene(item: Any, where: str, base_dir: Path) -> SceneSpec:
                           f"report files (images_<name>.png): at most {MAX_NAME_BYTES}")
     return SceneSpec(scene_name, scene_path,
                      _params(item.get("params"), f"{where}.params", as_str=True))
+
+
+def _parse_filters(value: Any) -> tuple[str, ...]:
+    if value is None:
+        return ()
+    if not isinstance(value, list) or not value:
+        raise ConfigError(f"filters must be a non-empty list of filter names, got {value!r}")
+    filters = tuple(_str(v, "filters[]") for v in value)
+    unknown = next((f for f in filters if f not in FILTERS), None)
+    if unknown is not None:
+        raise ConfigError(f"filters: unknown filter {unknown!r}; expected {', '.join(FILTERS)}")
+    _unique(list(filters), "filter", "filters")
+    return filters
+
+
+def _with_filters(scenes: tuple[SceneSpec, ...], filters: tuple[str, ...]
+                  ) -> tuple[SceneSpec, ...]:
+    """Every scene once per filter (``name~filter``), its film's filter replaced
+    (:data:`mcrt.render.scene.RFILTER_PARAM`: references are made with it too)."""
+    if not filters:
+        return scenes
+    from ...render.scene import RFILTER_PARAM
+
+    return tuple(SceneSpec(f"{s.name}{FILTER_SEPARATOR}{f}", s.path,
+                           {**s.params, RFILTER_PARAM: f}, rfilter=f)
+                 for s in scenes for f in filters)
 
 
 def _scene_path(raw_path: str, where: str, base_dir: Path) -> Path:

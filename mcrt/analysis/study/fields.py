@@ -67,6 +67,9 @@ class Field:
 
 CELL_FIELDS: tuple[Field, ...] = (
     Field("scene", column=Column("scene", "text")),
+    Field("filter", "the film's reconstruction filter set by the study's filters axis (the "
+                    "scene's name then ends in ~filter); empty: the scene's own filter",
+          column=Column("filter", "text")),
     Field("sampler", column=Column("sampler", "text")),
     Field("plugin"),
     Field("params"),

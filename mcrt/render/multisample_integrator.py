@@ -1,0 +1,233 @@
+"""The ``multisample`` integrator plugin: multisampling around any sampling integrator.
+
+``import mcrt`` registers it, so a scene can say::
+
+    <integrator type="multisample">
+        <integrator type="direct"/>
+    </integrator>
+
+and ``mi.render(scene)`` (or ``mcrt render``) traces the sampler's N positions
+per pixel for visibility and shades once per surface per pixel (see
+:mod:`mcrt.render.multisample`). The integrator counts what it shaded:
+``integrator.counts`` (:class:`ShadingCounts`), reset by ``reset_counts()``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import textwrap
+from dataclasses import dataclass, field
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.trace import integrator_sample
+from ..errors import McrtError
+from . import multisample as ms
+
+#: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
+_classes_variant = mi.variant()
+
+#: Properties that Mitsuba may pass to any sampling integrator (ignored).
+_IGNORED = ("samples_per_pass", "hide_emitters", "timeout")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One string parameter of the plugin: name, default, choices, description."""
+
+    name: str
+    default: str
+    choices: tuple[str, ...]
+    help: str
+
+
+#: The plugin's parameters (read by ``__init__``, listed in the docstring table).
+PARAMETERS = (
+    Param("representative", "centre", ms.REPRESENTATIVES,
+          "which sample of a group is shaded: ``centre``, the group's sample whose ray is "
+          "closest to the mean ray of the pixel (the covered sample nearest the centre of "
+          "the pixel's pattern, as MSAA shades at the pixel centre), or ``first``, the "
+          "group's first sample in sample order"),
+    Param("group_by", "primitive", ms.GROUPINGS,
+          "what makes two samples of a pixel one group: the same shape, instance and "
+          "``primitive`` (triangle), or the same ``shape`` and instance (a smooth mesh is "
+          "one group)"),
+)
+PARAMETERS_BY_NAME = {p.name: p for p in PARAMETERS}
+
+_ROW = "     "
+
+
+def parameter_row(p: Param) -> str:
+    """One row of the plugin's RST parameter table."""
+    text = f"{p.help[:1].upper()}{p.help[1:]}. (Default: ``{p.default}``)"
+    text = textwrap.fill(" ".join(text.split()), width=86 - len(_ROW),
+                         initial_indent=f"{_ROW}  - ", subsequent_indent=f"{_ROW}    ")
+    return f"{_ROW}* - {p.name}\n{_ROW}  - |string|\n{text}"
+
+
+def _docstring(template: str) -> str:
+    return template.replace("{parameters}", "\n".join(parameter_row(p) for p in PARAMETERS))
+
+
+@dataclass
+class ShadingCounts:
+    """What the integrator traced and shaded since the last ``reset_counts()``."""
+
+    samples: int = 0  # visibility samples (lanes)
+    evaluations: int = 0  # shading evaluations (group representatives)
+    #: Shading evaluations per pixel of the sampled grid, (height, width), summed
+    #: over wavefronts; None until a wavefront ran (or when the grid changed).
+    per_pixel: np.ndarray | None = None
+    wavefronts: int = 0
+    samples_per_pixel: list[int] = field(default_factory=list)  # N of each wavefront
+
+    @property
+    def per_sample(self) -> float:
+        """Shading evaluations per visibility sample (1 for supersampling)."""
+        return self.evaluations / self.samples if self.samples else 0.0
+
+
+class MultisampleIntegrator(mi.SamplingIntegrator):
+    __doc__ = _docstring(r"""
+    .. _integrator-multisample:
+
+    Multisampling (:monosp:`multisample`)
+    -------------------------------------
+
+    .. pluginparameters::
+
+     * - (Nested plugin)
+       - |integrator|
+       - The sampling integrator that shades a group (``direct``, ``path``,
+         ...). (Default: ``path``)
+{parameters}
+
+    Every sample of a pixel traces its primary ray for visibility; samples
+    whose rays hit the same surface (shape, instance, primitive; or all misses)
+    form a group, and only one sample per group, its representative, is shaded
+    by the nested integrator, in a compacted wavefront. Every sample then
+    carries its group's shaded value, so the film's reconstruction filter and
+    mcrt's statistics work unchanged: with a box filter a pixel is the
+    coverage-weighted sum of its groups' colours. Shading noise, texture detail
+    and shading discontinuities inside one surface (shadow edges) are sampled
+    once per group, not N times: textures alias unless they are prefiltered.
+
+    The wavefront must be pixel-major with the same number of samples for every
+    pixel (``mi.render`` and ``mcrt render`` are); ``mcrt render`` groups the
+    samples of one pass, so a pixel's N samples share shading only when a pass
+    holds all of them (``integrator.counts.samples_per_pixel`` says what each
+    wavefront had). Not supported: spectral variants, nesting in ``adaptive``.
+
+    .. tabs::
+
+        .. code-tab:: xml
+
+            <integrator type="multisample">
+                <integrator type="direct"/>
+            </integrator>
+
+        .. code-tab:: python
+
+            'type': 'multisample',
+            'nested': {'type': 'direct'}
+    """)
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        nested, values = [], {}
+        for name in props.keys():
+            value = props[name]
+            if isinstance(value, mi.Integrator):
+                nested.append(value)
+            elif name in PARAMETERS_BY_NAME:
+                values[name] = _choice(PARAMETERS_BY_NAME[name], value)
+            elif name not in _IGNORED:
+                raise McrtError(f"multisample: unknown parameter {name!r}; expected one of "
+                                f"{', '.join(PARAMETERS_BY_NAME)}")
+        if len(nested) > 1:
+            raise McrtError(f"multisample: expected one nested integrator, got {len(nested)}")
+        inner = nested[0] if nested else mi.load_dict({"type": "path"})
+        if not isinstance(inner, mi.SamplingIntegrator):
+            raise McrtError("multisample: the nested integrator must be a sampling integrator "
+                            f"(path, direct, ...), got {type(inner).__name__}")
+        if getattr(inner, "is_adaptive", False) or isinstance(inner, MultisampleIntegrator):
+            raise McrtError("multisample: cannot nest an adaptive or multisample integrator")
+        if mi.is_spectral:
+            raise McrtError("multisample: spectral variants are not supported (a group's "
+                            "samples have different wavelengths)")
+        self.nested = inner
+        self.representative = values.get("representative", PARAMETERS_BY_NAME[
+            "representative"].default)
+        self.group_by = values.get("group_by", PARAMETERS_BY_NAME["group_by"].default)
+        self.shading_sampler = mi.load_dict({"type": "independent", "sample_count": 1})
+        self.counts = ShadingCounts()
+
+    def reset_counts(self) -> None:
+        """Start counting samples and shading evaluations from zero."""
+        self.counts = ShadingCounts()
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        """Visibility for every lane, shading for one representative per group."""
+        lanes = dr.width(ray.o)
+        layout = ms.wavefront_layout(scene, lanes)
+        if layout.group == 1:  # one sample per pixel: nothing to share
+            spec, valid, aovs = integrator_sample(self.nested, scene, sampler, ray, medium,
+                                                  active)
+            self._count(layout, lanes, dr.ones(mi.UInt32, layout.pixels))
+            return spec, valid, aovs
+        dr.eval(ray)  # once: keys, distances and the compaction all read it
+        keys = ms.surface_keys(scene, ray, self.group_by, active)
+        distance = (ms.centre_distance(ray, layout.group)
+                    if self.representative == "centre" else None)
+        dr.eval(keys, distance)
+        rep = ms.representatives(keys, distance, layout.group, active)
+        seed = ms.shading_seed(sampler, active)
+        shaded = ms.shade_groups(scene, self.nested, self.shading_sampler, seed, ray, rep,
+                                 layout.group, medium)
+        self._count(layout, shaded.evaluations, shaded.per_pixel)
+        return shaded.spectrum, shaded.valid, shaded.aovs
+
+    def _count(self, layout: ms.Wavefront, evaluations: int, per_pixel: Any) -> None:
+        counts = self.counts
+        grid = np.array(per_pixel, dtype=np.int64).reshape(layout.grid[1], layout.grid[0])
+        if counts.per_pixel is None and counts.wavefronts == 0:
+            counts.per_pixel = grid
+        elif counts.per_pixel is not None and counts.per_pixel.shape == grid.shape:
+            counts.per_pixel = counts.per_pixel + grid
+        else:
+            counts.per_pixel = None
+        counts.samples += layout.lanes
+        counts.evaluations += int(evaluations)
+        counts.wavefronts += 1
+        counts.samples_per_pixel.append(layout.group)
+
+    def aov_names(self) -> list[str]:
+        return list(self.nested.aov_names())
+
+    def to_string(self) -> str:
+        return (f"MultisampleIntegrator[representative={self.representative}, "
+                f"group_by={self.group_by}, nested={self.nested}]")
+
+
+def _choice(p: Param, value: Any) -> str:
+    if not isinstance(value, str) or value not in p.choices:
+        raise McrtError(f"multisample: '{p.name}' must be one of {', '.join(p.choices)}, "
+                        f"got {value!r}")
+    return value
+
+
+def register() -> None:
+    """Register the ``multisample`` integrator with the active Mitsuba variant
+    (re-importing the module after a variant switch, as the samplers do)."""
+    module = importlib.import_module(__name__)
+    if mi.variant() != module._classes_variant:
+        module = importlib.reload(module)
+    mi.register_integrator("multisample",
+                           lambda props, cls=module.MultisampleIntegrator: cls(props))
+
+
+__all__ = ["PARAMETERS", "MultisampleIntegrator", "ShadingCounts", "register"]
