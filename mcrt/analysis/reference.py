@@ -60,6 +60,7 @@ Standard error
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -71,13 +72,15 @@ import numpy as np
 from ..cache import cache_dir
 from ..core.atomic import check_free_space, remove_stale_temporaries
 from ..core.filtered import SUMS, FilteredStats
-from ..core.job import Checkpoint, Interrupted, Job, content_key, run_job, scene_digest, set_aside
+from ..core.job import Checkpoint, Interrupted, Job, content_key, run_job, set_aside
 from ..core.progress import Progress
 from ..core.render import StatsRender, render_stats
 from ..core.sampling import check_sampler_name, make_sampler
+from ..core.scene_files import SceneBundle, SceneSource, scene_digest
 from ..core.stats import PixelStats
 from ..core.trace import film_grid_size
 from ..errors import McrtError, SamplerError
+from ..render.loaded import planned_scene, remember_planned
 from ..render.plan import plan_scene
 from ..samplers._hash import hash_keys_int
 from .pass_plan import DEFAULT_PASS_SPP, LANE_BUDGET, PassPlan, plan_passes
@@ -279,6 +282,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     spp, seed = int(spp), int(seed)
     check_sampler_name(sampler)
     planned = plan_scene(scene_path, params)  # the scene `mcrt render` renders (motion too)
+    source = SceneSource.of(scene_path, params)
+    remember_planned(source, params, planned)  # this process's tasks use it
     scene = planned.scene
     film = scene.sensors()[0].film()
     grid = film_grid_size(film)
@@ -321,19 +326,9 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
             done, seconds = found[1], found[2]
             log.info("resuming reference %s after pass %d of %d", key, done, plan.passes)
 
-    def render_pass(index: int) -> StatsRender:
-        count = plan.spp_of(index)
-        pass_sampler = make_sampler(sampler, count)
-        subframes, move = planned.schedule(pass_sampler, count, pass_seed(seed, index))
-        part = render_stats(scene, pass_sampler, seed=pass_seed(seed, index),
-                            max_lanes=LANE_BUDGET, passes=subframes, on_pass=move,
-                            filtered=filtered)
-        if part.spp != count:  # the plan only uses counts the sampler keeps
-            raise SamplerError(f"{sampler} rendered {part.spp} samples per pixel in pass "
-                               f"{index}, planned {count}")
-        return part
-
-    job = Job(key, plan.passes, render_pass, _merge)
+    task = ReferencePass(tuple(sorted(params.items())), sampler, plan, seed, filtered)
+    job = Job(key, plan.passes, functools.partial(reference_pass, task), _merge,
+              shared={"scene": source})
     saver = _StateSaver(key, plan, finished_path, partial_path, seconds, cache)
     bar = Progress(plan.passes, enabled=progress, desc="reference", initial=done)
     before = start.samples if start is not None else 0
@@ -357,6 +352,34 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
         bar.close()
     assert merged is not None
     return result(merged.stats, seconds + merged.seconds, resumed=done)
+
+
+@dataclass(frozen=True)
+class ReferencePass:
+    """What every pass of a reference needs besides its scene and index."""
+
+    params: tuple[tuple[str, str], ...]
+    sampler: str
+    plan: PassPlan
+    seed: int
+    filtered: bool
+
+
+def reference_pass(task: ReferencePass, index: int,
+                   scene: SceneSource | SceneBundle) -> StatsRender:
+    """Pass ``index`` of a reference: a pure function of its arguments, run in
+    this process or on a cluster worker (the scene loaded once per process)."""
+    planned = planned_scene(scene, dict(task.params))
+    count = task.plan.spp_of(index)
+    pass_sampler = make_sampler(task.sampler, count)
+    subframes, move = planned.schedule(pass_sampler, count, pass_seed(task.seed, index))
+    part = render_stats(planned.scene, pass_sampler, seed=pass_seed(task.seed, index),
+                        max_lanes=LANE_BUDGET, passes=subframes, on_pass=move,
+                        filtered=task.filtered)
+    if part.spp != count:  # the plan only uses counts the sampler keeps
+        raise SamplerError(f"{task.sampler} rendered {part.spp} samples per pixel in pass "
+                           f"{index}, planned {count}")
+    return part
 
 
 def memory_pass_spp(pixels: int, spp: int) -> int | None:

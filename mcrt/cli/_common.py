@@ -3,11 +3,25 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from ..core.atomic import check_free_space, ensure_writable_dir, remove_stale_temporaries
 from ..errors import McrtError
+
+log = logging.getLogger("mcrt")
+
+#: Where outputs go when no ``-o`` is given (never the current directory itself).
+OUTPUT_ROOT = Path("out")
+
+
+def examples(*lines: str) -> str:
+    """A subcommand's ``--help`` epilog: its example command lines."""
+    return "examples:\n" + "\n".join(f"  {line}" for line in lines)
 
 
 def positive_int(text: str) -> int:
@@ -32,12 +46,30 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+def names_directory(out: str) -> bool:
+    """Whether ``-o OUT`` names a directory: it ends in ``/`` or is an existing one."""
+    if out.endswith(("/", os.sep)):
+        return True
+    try:
+        return Path(out).is_dir()
+    except OSError:  # e.g. a name too long: not a directory; writing it reports why
+        return False
+
+
 def output_stem(out: str | None, default: str) -> Path:
-    """``-o OUT`` without a trailing image suffix (``OUT.exr`` and ``OUT.png`` get written)."""
-    path = Path(out or default)
-    if path.name in ("", ".", ".."):  # "/", ".", "out/..": no file name to add .exr to
-        given = f"-o {out}" if out else f"output path {default}"
-        raise McrtError(f"{given}: names a directory; give an output path such as "
+    """``-o OUT`` without a trailing image suffix (``OUT.exr`` and ``OUT.png`` get written).
+
+    No ``-o``: ``out/DEFAULT``. ``OUT`` naming a directory (an existing one, or
+    any path ending in ``/``): ``OUT/DEFAULT``.
+    """
+    if not out:
+        path = OUTPUT_ROOT / default
+    elif names_directory(out):
+        path = Path(out) / default
+    else:
+        path = Path(out)
+    if path.name in ("", ".", ".."):  # cannot happen for the forms above; kept as a guard
+        raise McrtError(f"-o {out}: names a directory; give an output path such as "
                         f"{path / 'image'}")
     if path.suffix.lower() in (".exr", ".png"):
         path = path.with_suffix("")
@@ -85,3 +117,38 @@ def require_space(directory: Path, needed: int, what: str = "the outputs") -> No
 def image_bytes(pixels: int, channels: int = 4) -> int:
     """Upper bound of an image file's size: float32 channels, uncompressed."""
     return pixels * channels * 4
+
+
+def note_first_run() -> None:
+    """A note before the first render on this machine: Dr.Jit compiles its kernels
+    then (cached in ``~/.drjit`` for later runs), which makes it seem slow."""
+    cache = Path.home() / ".drjit"
+    try:
+        empty = not cache.is_dir() or next(os.scandir(cache), None) is None
+    except OSError:
+        empty = True
+    if empty:
+        log.info("first run: Dr.Jit compiles the render kernels, which takes a while; they "
+                 "are cached in %s, so later runs start faster", cache)
+
+
+def add_cluster_argument(parser: argparse.ArgumentParser) -> None:
+    """``--cluster ADDRESS`` (and ``$MCRT_CLUSTER``): where a job's tasks run."""
+    parser.add_argument("--cluster", metavar="ADDRESS",
+                        help="run the tasks on a Dask cluster: 'local' or 'local:N' (N worker "
+                             "processes on this machine), or a scheduler address such as "
+                             "tcp://HOST:8786 (default: $MCRT_CLUSTER, else in this process); "
+                             "results are the same bits either way")
+
+
+@contextlib.contextmanager
+def cluster_executor(option: str | None) -> Iterator[Any]:
+    """The executor for ``--cluster`` (connected before any work: a bad address is a
+    one-line error), closed afterwards. In-process (no Dask import) without one."""
+    from ..core.executor import cluster_address, executor_for
+
+    executor = executor_for(cluster_address(option))
+    try:
+        yield executor
+    finally:
+        executor.close()

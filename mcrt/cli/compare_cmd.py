@@ -27,7 +27,7 @@ from ..analysis.study import (
 from ..core.atomic import remedy
 from ..errors import McrtError
 from . import _common
-from ._common import check_output_files, ensure_writable_dir
+from ._common import check_output_files, ensure_writable_dir, examples
 
 log = logging.getLogger("mcrt.compare")
 
@@ -41,7 +41,11 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                     "high-spp reference, fit error-vs-spp and error-vs-time slopes, and write "
                     "report.html, results.csv, results.json and PNG plots into DIR. Finished "
                     f"cells are saved in DIR/{STATE_DIR}: after Ctrl-C (which writes a partial "
-                    "report) the same command resumes where it stopped.")
+                    "report) the same command resumes where it stopped.",
+        epilog=examples("mcrt compare configs/quick.toml",
+                        "mcrt compare configs/quick.toml --check",
+                        "mcrt compare configs/full.toml -o out/full -q",
+                        "mcrt compare configs/full.toml --cluster local:2"))
     p.add_argument("config", metavar="CONFIG.toml", help="study configuration (TOML)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="report directory (default: out/compare/<study name>)")
@@ -49,6 +53,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="only validate the configuration (load scenes, make samplers) and exit")
     p.add_argument("--restart", action="store_true",
                    help=f"ignore the cells saved in DIR/{STATE_DIR} and measure every cell again")
+    _common.add_cluster_argument(p)
     p.set_defaults(run=run)
 
 
@@ -69,13 +74,15 @@ def run(args: argparse.Namespace) -> int:
     ensure_writable_dir(out)
     check_output_files(*report_files(out, [s.name for s in config.scenes]).values())
     _check_space(config, out)
+    _common.note_first_run()
 
     state = StudyState.open(out, config, restart=args.restart)
     if state.cells:
         log.info("resuming: %d of %d cells were measured by an earlier run (%s; --restart "
                  "measures them again)", len(state.cells), config.cells, state.directory)
     try:
-        result = run_study(config, progress=not args.quiet, state=state)
+        with _common.cluster_executor(args.cluster) as executor:
+            result = run_study(config, progress=not args.quiet, state=state, executor=executor)
     except StudyInterrupted as stop:
         return _write_partial(stop.result, args, out)
     except McrtError as error:
@@ -102,8 +109,9 @@ def run(args: argparse.Namespace) -> int:
                   f"{_num(fit['efficiency_max'], '.3g'):>10s}")
     resumed = (f" ({result.resumed_cells} of {config.cells} cells from the saved state)"
                if result.resumed_cells else "")
-    print(f"study took {result.seconds:.1f} s{resumed}; wrote {files['report']} "
-          f"(and results.csv, results.json, plots in {out})")
+    print(f"study took {result.seconds:.1f} s of wall time{resumed}, including kernel "
+          f"compilation, warm-ups and references (the per-render times of the report exclude "
+          f"them); wrote {files['report']} (and results.csv, results.json, plots in {out})")
     return 0
 
 
@@ -122,6 +130,9 @@ def _check_space(config, out: Path) -> None:
         pixels.append(int(grid[0]) * int(grid[1]))
     samplers = len(config.samplers)
     report = sum(p * (samplers * 3 * 4 * 2 + (samplers + 1) * 4 * 3) for p in pixels)
+    # Per cell: the viewer's images in the resume state (7 float32 a pixel), as EXR (7)
+    # and embedded in report.html (at most 10, base64).
+    report += sum(p * samplers * len(config.spp) * 4 * (7 + 7 + 14) for p in pixels)
     _common.require_space(out, report + _common.PLOTS_BYTES, "the report and its resume state")
     cache = cache_paths("x")[0].parent
     check_free_space(cache, sum(3 * STATE_BYTES_PER_PIXEL * p for p in pixels),

@@ -21,7 +21,14 @@ from ..io import write_exr
 from ..render.scene import check_scene_file, parse_defines
 from ..samplers import ALL_SAMPLERS
 from . import _common
-from ._common import check_output_files, non_negative_int, output_stem, positive_int
+from ._common import (
+    check_output_files,
+    examples,
+    non_negative_int,
+    note_first_run,
+    output_stem,
+    positive_int,
+)
 
 
 def add_parser(commands) -> None:
@@ -32,7 +39,10 @@ def add_parser(commands) -> None:
                     "(mean), variance (per sample), stderr (of the mean), count (samples per "
                     "pixel) and nonfinite (if any). Results are cached by scene content and "
                     "parameters ($MCRT_CACHE_DIR, else $XDG_CACHE_HOME/mcrt, else "
-                    "~/.cache/mcrt); an interrupted reference resumes from its last pass.")
+                    "~/.cache/mcrt); an interrupted reference resumes from its last pass.",
+        epilog=examples("mcrt reference scenes/cornell_box.xml --spp 4096",
+                        "mcrt reference scenes/checkerboard.xml --sampler jittered -o out/refs/",
+                        "mcrt reference scenes/cornell_box.xml --spp 65536 --cluster local"))
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     p.add_argument("--spp", type=positive_int, default=DEFAULT_REFERENCE_SPP, metavar="N",
                    help=f"total samples per pixel (default {DEFAULT_REFERENCE_SPP})")
@@ -45,9 +55,11 @@ def add_parser(commands) -> None:
     p.add_argument("-D", dest="defines", action="append", metavar="KEY=VALUE",
                    help="set a scene parameter ($KEY in the XML); repeatable")
     p.add_argument("-o", "--output", metavar="OUT",
-                   help="output EXR path (default: <scene>_reference.exr)")
+                   help="output EXR path, or a directory to write into "
+                        "(default: out/<scene>_reference.exr)")
     p.add_argument("--no-cache", action="store_true",
                    help="neither read nor write the cache (no resume)")
+    _common.add_cluster_argument(p)
     p.set_defaults(run=run)
 
 
@@ -65,12 +77,15 @@ def run(args: argparse.Namespace) -> int:
     check_scene_file(args.scene)
     out = _output_path(args.output, args.scene)
     check_output_files(out)
+    note_first_run()
 
     try:
-        ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
-                            seed=args.seed, spp_per_pass=args.spp_per_pass,
-                            progress=not args.quiet, cache=not args.no_cache,
-                            before_work=lambda w, h: _before_work(out, w * h))
+        with _common.cluster_executor(args.cluster) as executor:
+            ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
+                                seed=args.seed, spp_per_pass=args.spp_per_pass,
+                                progress=not args.quiet, cache=not args.no_cache,
+                                before_work=lambda w, h: _before_work(out, w * h),
+                                executor=executor)
     except Interrupted as stop:
         part = stop.partial
         meta = {**reference_metadata(part, args.scene, params), "partial": 1,

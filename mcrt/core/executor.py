@@ -1,30 +1,59 @@
 """Executors run a job's tasks; :func:`~mcrt.core.job.run_job` folds the results.
 
-An executor has one method, ``map(fn, tasks, start)``, yielding
-``(index, fn(index))`` for every task index from ``start`` to ``tasks - 1``, in
-any order.
-Tasks are deterministic, so which executor ran them never changes a result.
-:class:`InProcess` runs them here, one after the other; a distributed
-executor only has to provide the same method.
+An executor has one method, ``map(fn, tasks, start, shared, name)``, yielding
+``(index, fn(index, **shared))`` for every task index from ``start`` to
+``tasks - 1``, in any order. Tasks are deterministic, so which executor ran
+them never changes a result.
+
+* :class:`InProcess` runs them here, one after the other (the default);
+* :class:`~mcrt.core.cluster.DaskExecutor` runs them on a Dask cluster
+  (``local``, ``local:N`` or a scheduler's address), chosen with
+  :func:`executor_for` from the ``--cluster`` option or ``MCRT_CLUSTER``.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 R = TypeVar("R")
 
+#: Environment variable naming the cluster when ``--cluster`` is not given.
+CLUSTER_ENV = "MCRT_CLUSTER"
+
 
 class Executor(Protocol):
-    def map(self, fn: Callable[[int], R], tasks: int,
-            start: int = 0) -> Iterator[tuple[int, R]]: ...
+    def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
+            shared: dict[str, Any] | None = None,
+            name: str = "") -> Iterator[tuple[int, R]]: ...
 
 
 class InProcess:
     """Run tasks in this process, in order (the default)."""
 
-    def map(self, fn: Callable[[int], R], tasks: int,
-            start: int = 0) -> Iterator[tuple[int, R]]:
+    def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
+            shared: dict[str, Any] | None = None,
+            name: str = "") -> Iterator[tuple[int, R]]:
         for index in range(start, tasks):
-            yield index, fn(index)
+            yield index, fn(index, **(shared or {}))
+
+    def close(self) -> None:
+        pass
+
+
+def cluster_address(option: str | None) -> str | None:
+    """The cluster to use: the ``--cluster`` option, else ``$MCRT_CLUSTER``
+    (empty or unset: none, in-process)."""
+    address = option if option is not None else os.environ.get(CLUSTER_ENV, "")
+    return address.strip() or None
+
+
+def executor_for(address: str | None) -> Any:
+    """:class:`InProcess` for no address (Dask is not even imported), else a
+    :class:`~mcrt.core.cluster.DaskExecutor` connected to ``address``."""
+    if address is None:
+        return InProcess()
+    from .cluster import DaskExecutor
+
+    return DaskExecutor.connect(address)

@@ -22,9 +22,7 @@ import io
 import json
 import logging
 import os
-import re
 import time
-import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,61 +57,6 @@ def content_key(payload: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
-_VAR = re.compile(r"\$(\w+)")
-
-
-def _substitute(text: str, values: dict[str, str]) -> str:
-    for _ in range(8):  # defaults may refer to other parameters ($width = $res)
-        new = _VAR.sub(lambda m: values.get(m.group(1), m.group(0)), text)
-        if new == text:
-            break
-        text = new
-    return text
-
-
-def _hash_scene_file(path: Path, params: dict[str, str], digest: Any, seen: set[Path]) -> None:
-    """Feed ``path`` and the files it includes or names into ``digest``."""
-    path = path.resolve()
-    if path in seen:
-        return
-    seen.add(path)
-    data = path.read_bytes()
-    digest.update(b"file\0%d\0" % len(data) + data)
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError:
-        return  # Mitsuba will report it; the bytes are hashed anyway
-    values = {el.get("name", ""): el.get("value", "") for el in root.iter("default")}
-    values.update(params)
-    for el in root.iter():
-        if el.tag == "include":
-            name = el.get("filename")
-        elif el.get("name") == "filename":
-            name = el.get("value")
-        else:
-            continue
-        if not name:
-            continue
-        name = _substitute(name, values)
-        target = (path.parent / name) if not os.path.isabs(name) else Path(name)
-        digest.update(b"ref\0" + name.encode() + b"\0")
-        if not target.is_file():
-            digest.update(b"missing\0")
-        elif el.tag == "include" or target.suffix.lower() == ".xml":
-            _hash_scene_file(target, params, digest, seen)
-        else:
-            digest.update(hashlib.sha256(target.read_bytes()).digest())
-
-
-def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:
-    """SHA-256 of a scene's content: the XML, the XML files it includes and the
-    files it names (``<string name="filename" .../>``), resolved relative to the
-    scene with ``$params`` and ``<default>`` values substituted."""
-    digest = hashlib.sha256()
-    _hash_scene_file(Path(scene_path), dict(params or {}), digest, set())
-    return digest.hexdigest()
-
-
 # --------------------------------------------------------------------------- checkpoints
 
 
@@ -133,10 +76,14 @@ class Checkpoint:
     meta: dict[str, Any] = field(default_factory=dict)
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def save(self, path: Path, key: str) -> None:
-        """Write atomically; a kill at any moment leaves the old file or the new one."""
+    def save(self, path: Path, key: str, job: str = "") -> None:
+        """Write atomically; a kill at any moment leaves the old file or the new one.
+
+        ``job`` (optional) says in words whose checkpoint it is (a command line),
+        for the note of a later job that finds it in its way.
+        """
         meta_text = json.dumps(self.meta, sort_keys=True)
-        header = json.dumps({"format": CHECKPOINT_FORMAT, "key": key,
+        header = json.dumps({"format": CHECKPOINT_FORMAT, "key": key, "job": job,
                              "checksum": _checksum(key, meta_text, self.arrays)})
         buffer = io.BytesIO()
         members: dict[str, Any] = {f"a_{name}": a for name, a in self.arrays.items()}
@@ -190,17 +137,55 @@ def set_aside(path: Path, why: str) -> None:
         log.warning("%s is %s: not used, the work is done again", path, why)
 
 
+def other_job(path: Path, key: str) -> str | None:
+    """If ``path`` holds an intact-looking checkpoint of another job than ``key``:
+    what it was, in words (its command line and progress). None otherwise."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            header = json.loads(str(data["header"]))
+            meta = json.loads(str(data["meta"]))
+    except Exception:  # missing, a directory, damaged: Checkpoint.load reports those
+        return None
+    if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT \
+            or header.get("key") == key:
+        return None
+    job = str(header.get("job") or "") or "a job with other settings, scene files or versions"
+    done = meta.get("done", meta.get("next_pass")) if isinstance(meta, dict) else None
+    settings = meta.get("settings") if isinstance(meta, dict) else None
+    if isinstance(done, int) and isinstance(settings, list) and len(settings) == 3:
+        return f"{job}; {settings[0]} spp, {done} passes done"
+    return f"{job}; {done} passes done" if isinstance(done, int) else job
+
+
 class CheckpointStore:
     """Where one job keeps its checkpoint: the first of ``paths`` that can be
-    written (e.g. next to the output, else in the cache)."""
+    written (e.g. next to the output, else in the cache).
 
-    def __init__(self, paths: Iterable[Path], key: str) -> None:
+    A path holding the checkpoint of another job (another spp, seed, scene...)
+    is kept as it is, with a note saying whose it is: this job then uses the
+    next path, and the other job can still be resumed by its own command.
+    ``job`` (a command line) is recorded with the checkpoints for such notes.
+    """
+
+    def __init__(self, paths: Iterable[Path], key: str, job: str = "") -> None:
         self.paths = [Path(p) for p in paths]
         self.key = key
+        self.job = job
         self.saved: Path | None = None
+        self.foreign: set[Path] = set()
 
     def load(self) -> Checkpoint | None:
         for path in self.paths:
+            other = other_job(path, self.key)
+            if other is not None:
+                self.foreign.add(path)
+                mine = next((p for p in self.paths if p not in self.foreign), None)
+                where = f"this render keeps its checkpoint in {mine}" if mine else \
+                    "this render keeps no checkpoint"
+                log.info("%s is the checkpoint of another render (%s): kept, not replaced; "
+                         "%s (run the other command to resume it, or delete the file)",
+                         path, other, where)
+                continue
             found = Checkpoint.load(path, self.key)
             if found is not None:
                 return found
@@ -209,8 +194,10 @@ class CheckpointStore:
     def save(self, checkpoint: Checkpoint) -> Path | None:
         """Save to the first writable path; None (with a note) if none works."""
         for path in self.paths:
+            if path in self.foreign:
+                continue
             try:
-                checkpoint.save(path, self.key)
+                checkpoint.save(path, self.key, self.job)
                 self.saved = path
                 return path
             except (McrtError, OSError) as error:
@@ -218,8 +205,10 @@ class CheckpointStore:
         return None
 
     def discard(self) -> None:
+        """Delete this job's checkpoint (never another job's)."""
         for path in self.paths:
-            path.unlink(missing_ok=True)
+            if path not in self.foreign:
+                path.unlink(missing_ok=True)
 
     def save_periodic(self, checkpoint: Checkpoint) -> None:
         """A checkpoint taken while the job runs: after a failure (full disk, ...)
@@ -293,14 +282,19 @@ T = TypeVar("T")
 
 @dataclass
 class Job(Generic[R, T]):
-    """``tasks`` deterministic tasks, numbered from 0: ``run(index)`` is a pure
-    function of the task's index, ``fold(total, result)`` combines results in
-    task order into a total. ``key`` identifies the job (:func:`content_key`)."""
+    """``tasks`` deterministic tasks, numbered from 0: ``run(index, **shared)``
+    is a pure function of the task's index, ``fold(total, result)`` combines
+    results in task order into a total. ``key`` identifies the job
+    (:func:`content_key`). ``shared`` holds inputs every task takes (a scene's
+    files, say): an executor delivers each once per worker. A job that may run
+    on a cluster has a picklable ``run`` (a module-level function or a
+    ``functools.partial`` of one) and picklable ``shared`` values."""
 
     key: str
     tasks: int
-    run: Callable[[int], R]
+    run: Callable[..., R]
     fold: Callable[[T | None, R], T]
+    shared: dict[str, Any] = field(default_factory=dict)
 
 
 def run_job(job: Job[R, T], executor: Any = None, done: int = 0, total: T | None = None,
@@ -317,7 +311,8 @@ def run_job(job: Job[R, T], executor: Any = None, done: int = 0, total: T | None
     pending: dict[int, R] = {}
     next_index = done
     try:
-        for index, result in executor.map(job.run, job.tasks, start=done):
+        for index, result in executor.map(job.run, job.tasks, start=done, shared=job.shared,
+                                          name=job.key):
             pending[index] = result
             while next_index in pending:
                 total = job.fold(total, pending.pop(next_index))

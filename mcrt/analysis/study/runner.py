@@ -6,11 +6,13 @@ See :mod:`mcrt.analysis.study` for what is measured and how time is taken.
 from __future__ import annotations
 
 import datetime
+import functools
 import logging
 import os
 import platform
 import time
-from dataclasses import dataclass
+import uuid
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -24,12 +26,18 @@ from ..aliasing import aliasing_score
 from ..metrics import REL_MSE_EPSILON, delta_e_2000, error_map, mse, reference_noise_floor, rel_mse
 from .config import WARMUP_SEED, SamplerSpec, SceneSpec, StudyConfig, cell_keys, check_config
 from .store import StudyState, reference_fingerprint
-from .summary import CellImages, cell_images, fit_sampler, summarise_cell
+from .summary import (
+    CellImages,
+    CellRenders,
+    cell_images,
+    cell_renders,
+    fit_sampler,
+    summarise_cell,
+)
 
 if TYPE_CHECKING:
-    import mitsuba as mi
-
     from ...core.render import FilmRender
+    from ...core.scene_files import SceneBundle, SceneSource
     from ...render.plan import PlannedScene
 
 log = logging.getLogger("mcrt.compare")
@@ -69,6 +77,9 @@ class StudyResult:
     resumed_cells: int = 0
     #: how to resume a partial study (set by the command line)
     resume_command: str | None = None
+    #: every measured cell's images (mean, first seed, variance), keyed like
+    #: :meth:`cell`: (scene, sampler label, spp requested)
+    renders: dict[tuple[str, str, int], CellRenders] = field(default_factory=dict)
 
     @property
     def partial(self) -> bool:
@@ -128,7 +139,7 @@ def environment() -> dict[str, Any]:
 
 
 def run_study(config: StudyConfig, progress: bool = False,
-              state: StudyState | None = None) -> StudyResult:
+              state: StudyState | None = None, executor: Any = None) -> StudyResult:
     """Run every cell of a validated study; see :mod:`mcrt.analysis.study` for
     what is measured.
 
@@ -140,6 +151,7 @@ def run_study(config: StudyConfig, progress: bool = False,
         check_config(config)
     bar = Progress(config.renders, progress, unit="render", desc="study", leave=True)
     run = _Run(config, state, bar)
+    run.executor = executor
     try:
         for spec in config.scenes:
             run.scene(spec)
@@ -168,6 +180,7 @@ class _Scene:
     def __init__(self, spec: SceneSpec):
         self.spec = spec
         self._planned: PlannedScene | None = None
+        self._source: SceneSource | None = None
 
     def planned(self) -> PlannedScene:
         from ...render.plan import plan_scene
@@ -176,12 +189,64 @@ class _Scene:
             self._planned = plan_scene(self.spec.path, self.spec.params)
         return self._planned
 
-    def render(self, sampler: mi.Sampler, seed: int) -> FilmRender:
-        from ...core.render import render_film  # looked up now: tests wrap it
+    def source(self) -> SceneSource:
+        """The scene as its seed tasks receive it (planned here already)."""
+        from ...core.scene_files import SceneSource
+        from ...render.loaded import remember_planned
 
-        planned = self.planned()
+        if self._source is None:
+            self._source = SceneSource.of(self.spec.path, self.spec.params)
+            remember_planned(self._source, self.spec.params, self.planned())
+        return self._source
+
+
+@dataclass(frozen=True)
+class SeedTask:
+    """What every seed of a cell needs besides its scene and index."""
+
+    params: tuple[tuple[str, str], ...]
+    sampler: SamplerSpec
+    spp: int
+    seeds: tuple[int, ...]
+    run: str  # the study run: each process warms a cell up once per run
+
+
+@dataclass
+class SeedRender:
+    """One seed's render, as a task returns it."""
+
+    spp: int
+    seconds: float
+    rgb: np.ndarray  # (H, W, 3) float32, linear sRGB
+
+
+#: (run, scene digest, sampler label, spp) of the cells this process warmed up.
+_warmed: set[tuple[str, str, str, int]] = set()
+
+
+def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle) -> SeedRender:
+    """Seed ``index`` of a cell, rendered as ``mcrt render`` renders it; the
+    first task of a cell in a process first renders an untimed warm-up (kernels
+    compiled and cached), so every timed render is warm."""
+    from ...core import render  # looked up now: tests wrap render_film
+    from ...core.sampling import make_sampler, quiet_sampler_warnings
+    from ...render.loaded import planned_scene
+
+    planned = planned_scene(scene, dict(task.params))
+    cell = (task.run, getattr(scene, "digest", ""), task.sampler.label, task.spp)
+
+    def run(seed: int) -> FilmRender:
+        with quiet_sampler_warnings():
+            sampler = make_sampler(task.sampler.name, task.spp, **task.sampler.params)
         subframes, move = planned.schedule(sampler, None, seed)
-        return render_film(planned.scene, sampler, seed=seed, passes=subframes, on_pass=move)
+        return render.render_film(planned.scene, sampler, seed=seed, passes=subframes,
+                                  on_pass=move)
+
+    if cell not in _warmed:
+        run(WARMUP_SEED)  # untimed
+        _warmed.add(cell)
+    rendered = run(task.seeds[index])
+    return SeedRender(rendered.spp, rendered.seconds, np.asarray(rendered.rgb, np.float32))
 
 
 def _collect(total: list[Any] | None, result: Any) -> list[Any]:
@@ -205,8 +270,11 @@ class _Run:
         self.reference_images: dict[str, np.ndarray] = {}
         self.cells: list[dict[str, Any]] = []
         self.images: dict[tuple[str, str], CellImages] = {}
+        self.renders: dict[tuple[str, str, int], CellRenders] = {}
         #: runs the seeds of a cell (:mod:`mcrt.core.executor`; in-process by default)
         self.executor: Any = None
+        #: this run's name for its tasks (each process warms a cell up once per run)
+        self.token = uuid.uuid4().hex
         #: the cell being rendered (see StudyResult.interrupted)
         self.current: dict[str, Any] | None = None
         self.resumed = 0
@@ -221,7 +289,8 @@ class _Run:
         return StudyResult(config=self.config, references=self.references, cells=self.cells,
                            fits=fits, reference_images=self.reference_images,
                            images=self.images, environment=self.env, seconds=self.seconds(),
-                           interrupted=interrupted, resumed_cells=self.resumed)
+                           interrupted=interrupted, resumed_cells=self.resumed,
+                           renders=self.renders)
 
     def scene(self, spec: SceneSpec) -> None:
         """Every cell of one scene, against its reference."""
@@ -244,7 +313,8 @@ class _Run:
             self.bar.describe(f"{spec.name}: reference pass {index + 1}/{passes}")
 
         ref = get_reference(spec.path, spec.params, spp=config.spp, sampler=config.sampler,
-                            seed=config.seed, spp_per_pass=config.spp_per_pass, on_pass=on_pass)
+                            seed=config.seed, spp_per_pass=config.spp_per_pass, on_pass=on_pass,
+                            executor=self.executor)
         mean = np.asarray(ref.mean, dtype=np.float64)
         se = np.asarray(ref.standard_error, dtype=np.float64)
         var = se ** 2
@@ -274,6 +344,10 @@ class _Run:
             if saved_images is None:
                 return False
             self.images[(scene, label)] = saved_images
+        saved_renders = self.state.renders(scene, label, spp)
+        if saved_renders is None:
+            return False
+        self.renders[(scene, label, spp)] = saved_renders
         self.cells.append(saved)
         self.resumed += 1
         self.bar.update(len(self.config.seeds) + 1)
@@ -281,50 +355,46 @@ class _Run:
 
     def measure(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference) -> None:
         """Render one cell (a warm-up, then every seed), summarise and record it."""
-        from ...core.sampling import make_sampler, quiet_sampler_warnings
 
         name, k = scene.spec.name, len(self.config.seeds)
         scene.planned()
         self.bar.describe(f"{name}: {sampler.label} {spp} spp")
         current = self.current = {"scene": name, "sampler": sampler.label, "spp": spp,
                                   "seeds_done": 0, "seeds_total": k}
-        with quiet_sampler_warnings():
-            warmup = make_sampler(sampler.name, spp, **sampler.params)
-            scene.render(warmup, WARMUP_SEED)  # untimed: compiles/caches kernels
-        self.bar.update()
         seeds = self.config.seeds
 
-        def on_fold(done: int, _: list[tuple[dict[str, Any], np.ndarray]]) -> None:
+        def on_fold(done: int, _: list[SeedRender]) -> None:
             current["seeds_done"] = done
-            self.bar.update()
+            self.bar.update(2 if done == 1 else 1)  # the first seed's task warmed up too
 
-        # The cell's seeds are the tasks of a job, folded in seed order.
-        job: Job[Any, list[Any]] = Job(f"{name}/{sampler.label}/{spp}", len(seeds),
-                  lambda i: self.render_seed(scene, sampler, spp, seeds[i], ref), _collect)
-        results = run_job(job, self.executor, on_fold=on_fold) or []
+        # The cell's seeds are the tasks of a job, folded in seed order; each task
+        # renders on whichever process (or cluster worker) runs it.
+        task = SeedTask(tuple(sorted(scene.spec.params.items())), sampler, spp, tuple(seeds),
+                        self.token)
+        job: Job[SeedRender, list[SeedRender]] = Job(
+            f"{name}/{sampler.label}/{spp}", len(seeds), functools.partial(render_seed, task),
+            _collect, shared={"scene": scene.source()})
+        rendered: list[SeedRender] = run_job(job, self.executor, on_fold=on_fold) or []
+        results = [self.score_seed(name, sampler, spp, seeds[i], ref, r)
+                   for i, r in enumerate(rendered)]
         per_seed = [values for values, _ in results]
         renders = [rgb for _, rgb in results]
         stats = PixelStats.from_images(renders)
         cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
-                              ref.floor, k)
+                              ref.floor, k, rfilter=scene.spec.rfilter)
         images = None
         if spp == self.config.image_spp:
             images = self.images[(name, sampler.label)] = cell_images(renders, stats, ref.mean)
+        views = self.renders[(name, sampler.label, spp)] = cell_renders(renders, stats)
         self.cells.append(cell)
         self.current = None
         if self.state is not None:
-            self.state.add(cell, images, self.seconds())
+            self.state.add(cell, images, self.seconds(), renders=views)
 
-    def render_seed(self, scene: _Scene, sampler: SamplerSpec, spp: int, seed: int,
-                    ref: _Reference) -> tuple[dict[str, Any], np.ndarray]:
-        """One timed render and its metrics (NaN/Inf pixels counted, logged and
-        measured as zero error); returns the per-seed values and the image."""
-        from ...core.sampling import make_sampler, quiet_sampler_warnings
-
-        name = scene.spec.name
-        with quiet_sampler_warnings():
-            obj = make_sampler(sampler.name, spp, **sampler.params)
-        rendered = scene.render(obj, seed)
+    def score_seed(self, name: str, sampler: SamplerSpec, spp: int, seed: int,
+                   ref: _Reference, rendered: SeedRender) -> tuple[dict[str, Any], np.ndarray]:
+        """A seed's metrics (NaN/Inf pixels counted, logged and measured as zero
+        error); returns the per-seed values and the image."""
         rgb = np.asarray(rendered.rgb, dtype=np.float64)
         if rgb.shape != ref.mean.shape:
             raise McrtError(f"scene {name!r}: render shape {rgb.shape} "

@@ -1,0 +1,229 @@
+"""mcrt on a real Dask ``LocalCluster``: the same bits as in this process.
+
+References and studies are jobs of deterministic tasks folded in task order on
+the client, so where a task ran (this process, one worker or another, a worker
+that replaced a killed one) never changes a result. These tests run real
+worker processes (``local:2``: two processes, one Dr.Jit thread each).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+
+from mcrt.analysis.reference import get_reference  # noqa: E402
+from mcrt.analysis.study import load_config, run_study  # noqa: E402
+from mcrt.core.cluster import DaskExecutor  # noqa: E402
+from mcrt.core.job import Interrupted  # noqa: E402
+from mcrt.core.scene_files import bundle_scene, materialize, scene_digest  # noqa: E402
+from mcrt.io import read_exr  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CORNELL = ROOT / "scenes" / "cornell_box.xml"
+PARAMS = {"res": "24"}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    executor = DaskExecutor.connect("local:2")
+    yield executor
+    executor.close()
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def _same_stats(a, b) -> None:
+    for name in ("count", "mean", "m2", "nonfinite"):
+        np.testing.assert_array_equal(getattr(a.stats, name), getattr(b.stats, name),
+                                      err_msg=name)
+
+
+def test_reference_on_a_cluster_is_bit_identical(cluster):
+    """8 passes on two worker processes, folded in pass order: the same float64
+    moments as the passes run one after the other here."""
+    here = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False)
+    there = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False,
+                          executor=cluster)
+    assert there.passes == here.passes == 8
+    _same_stats(here, there)
+
+
+def test_ctrl_c_on_the_client_keeps_the_passes_and_resumes_without_a_cluster(cluster, cache):
+    """Ctrl-C after 3 folded passes (raised on the client, as the terminal would):
+    the partial state is in the cache, and the same reference in this process
+    resumes after pass 3 and ends equal to an uninterrupted one."""
+    def ctrl_c(index: int, passes: int) -> None:
+        if index == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(Interrupted) as stopped:
+        get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, executor=cluster,
+                      on_pass=ctrl_c)
+    assert stopped.value.done == 3
+    resumed = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8)
+    assert resumed.resumed_passes == 3
+    _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
+
+
+def _tiny_study(tmp_path: Path) -> Path:
+    path = tmp_path / "tiny.toml"
+    path.write_text(f"""
+name = "tiny"
+spp = [4, 16]
+seeds = 3
+image_spp = 16
+samplers = ["jittered", "independent"]
+
+[reference]
+spp = 64
+
+[[scenes]]
+path = "{CORNELL}"
+name = "cornell_box"
+params = {{ res = 32 }}
+""")
+    return path
+
+
+#: Result fields that are measured times (or made from them): not part of the bits.
+_TIMED = ("seconds", "efficiency", "time", "environment", "date", "cached")
+
+
+def _untimed(value):
+    if isinstance(value, dict):
+        return {k: _untimed(v) for k, v in value.items()
+                if not any(word in k for word in _TIMED)}
+    if isinstance(value, list):
+        return [_untimed(v) for v in value]
+    return value
+
+
+def _cells(result) -> list:
+    return _untimed([dict(cell) for cell in result.cells])
+
+
+def test_a_worker_killed_in_the_middle_of_a_study_changes_nothing(tmp_path, cache):
+    """A study's seeds run on two workers; one worker process is SIGKILLed while
+    tasks run. Dask runs its tasks again (on the other worker or the one that
+    replaces it): every cell's numbers equal those of the study run here."""
+    config = load_config(_tiny_study(tmp_path))
+    here = run_study(config)
+    executor = DaskExecutor.connect("local:2")
+    killed: list[int] = []
+
+    def kill_one_worker() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not killed:
+            running = [key for keys in executor.client.processing().values() for key in keys]
+            if any("cornell_box/" in str(key) for key in running):  # a seed task runs
+                pids = executor.client.run(os.getpid)
+                pid = sorted(pids.values())[0]
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+            time.sleep(0.05)
+
+    killer = threading.Thread(target=kill_one_worker, daemon=True)
+    try:
+        killer.start()
+        there = run_study(config, executor=executor)
+        killer.join(timeout=5)
+    finally:
+        executor.close()
+    assert killed, "no worker was killed: the test did not test anything"
+    assert _cells(there) == _cells(here)
+
+
+def _mcrt(*args: str, env: dict | None = None, cwd: Path | None = None
+          ) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "mcrt", *args], capture_output=True, text=True,
+                          timeout=600, env={**os.environ, **(env or {})}, cwd=cwd)
+
+
+def test_reference_command_writes_the_same_exr_with_a_cluster(tmp_path, cache):
+    """`mcrt reference --cluster local:2` and without: the same EXR layers."""
+    common = [str(CORNELL), "-D", "res=16", "--spp", "32", "--spp-per-pass", "8",
+              "--no-cache"]
+    here = _mcrt("-q", "reference", *common, "-o", str(tmp_path / "here.exr"))
+    there = _mcrt("-q", "reference", *common, "--cluster", "local:2",
+                  "-o", str(tmp_path / "there.exr"))
+    assert here.returncode == 0, here.stderr
+    assert there.returncode == 0, there.stderr
+    (a, meta_a), (b, meta_b) = read_exr(tmp_path / "here.exr"), read_exr(tmp_path / "there.exr")
+    assert a.keys() == b.keys() and meta_a == meta_b  # the header holds no timings
+    for layer in a:
+        np.testing.assert_array_equal(a[layer], b[layer], err_msg=layer)
+
+
+@pytest.mark.parametrize("address, message", [
+    ("tcp://127.0.0.1:9", "cannot reach the Dask scheduler at tcp://127.0.0.1:9"),
+    ("nowhere", "expected 'local', 'local:N' or a scheduler address"),
+    ("local:0", "at least 1 worker"),
+])
+def test_a_bad_cluster_is_one_line_before_any_work(tmp_path, cache, address, message):
+    out = tmp_path / "ref.exr"
+    done = _mcrt("reference", str(CORNELL), "-D", "res=16", "--spp", "16", "-o", str(out),
+                 env={"MCRT_CLUSTER": address, "MCRT_CLUSTER_TIMEOUT": "2"})
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("mcrt: error: ") and message in lines[0]
+    assert not out.exists() and not (cache / "references").exists()
+
+
+def test_without_a_cluster_dask_is_not_imported(tmp_path, cache):
+    code = ("import sys\nfrom mcrt.cli import main\n"
+            f"assert main(['-q', 'reference', {str(CORNELL)!r}, '-D', 'res=8', '--spp', '4', "
+            f"'--no-cache', '-o', {str(tmp_path / 'r.exr')!r}]) == 0\n"
+            "assert 'distributed' not in sys.modules and 'dask' not in sys.modules\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, env={**os.environ, "MCRT_CLUSTER": ""})
+    assert done.returncode == 0, done.stderr
+
+
+def test_a_scene_travels_with_its_files(tmp_path):
+    """A scene naming a mesh in a sibling folder (``../meshes/...``) is bundled
+    with it; written elsewhere, it has the same content digest (what a worker
+    without the client's files renders)."""
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "tri.obj").write_text(
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    xml = tmp_path / "scene" / "s.xml"
+    xml.write_text('<scene version="3.0.0"><default name="mesh" value="tri"/>'
+                   '<shape type="obj"><string name="filename" '
+                   'value="../meshes/$mesh.obj"/></shape></scene>')
+    bundle = bundle_scene(xml)
+    assert sorted(name for name, _ in bundle.files) == ["meshes/tri.obj", "scene/s.xml"]
+    copy = materialize(bundle, tmp_path / "worker")
+    assert copy != xml and copy.name == "s.xml"
+    assert scene_digest(copy) == scene_digest(xml) == bundle.digest
+    (tmp_path / "meshes" / "tri.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert scene_digest(xml) != bundle.digest  # a changed mesh is another scene
+
+
+def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
+    """The quick study (configs/quick.toml) in this process and on `local:2`
+    (references shared through the cache): results.json equal apart from times."""
+    quick = ROOT / "configs" / "quick.toml"
+    here = _mcrt("-q", "compare", str(quick), "-o", str(tmp_path / "here"))
+    assert here.returncode == 0, here.stderr[-2000:]
+    there = _mcrt("-q", "compare", str(quick), "-o", str(tmp_path / "there"), "--cluster",
+                  "local:2")
+    assert there.returncode == 0, there.stderr[-2000:]
+    a = json.loads((tmp_path / "here" / "results.json").read_text())
+    b = json.loads((tmp_path / "there" / "results.json").read_text())
+    assert _untimed(a) == _untimed(b)
