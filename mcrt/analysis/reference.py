@@ -71,6 +71,7 @@ import numpy as np
 
 from ..cache import cache_dir
 from ..core.atomic import check_free_space, remove_stale_temporaries
+from ..core.executor import cluster_status
 from ..core.filtered import SUMS, FilteredStats
 from ..core.job import Checkpoint, Interrupted, Job, content_key, run_job, set_aside
 from ..core.progress import Progress
@@ -336,7 +337,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     def on_fold(count: int, merged: StatsRender) -> None:
         saver.save(count, merged)
         if merged.seconds > 0:
-            bar.postfix(f"{(merged.samples - before) / merged.seconds / 1e6:.2f} M samples/s")
+            bar.postfix(f"{(merged.samples - before) / merged.seconds / 1e6:.2f} M samples/s"
+                        + cluster_status(executor))
         bar.update(1)
         if on_pass is not None:
             on_pass(count - 1, plan.passes)

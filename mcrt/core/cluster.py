@@ -54,7 +54,8 @@ _LOST = (OSError, TimeoutError, CancelledError)  # (CommClosedError is an OSErro
 
 class WorkerSetup(WorkerPlugin):
     """Prepares each worker process: Mitsuba's variant (the client's), mcrt's
-    plugins and, for local clusters, the worker's share of Dr.Jit threads."""
+    plugins and the worker's share of Dr.Jit threads (local clusters: cores / N;
+    elsewhere ``$MCRT_WORKER_THREADS`` on the worker, else all its cores)."""
 
     name = "mcrt-setup"
 
@@ -69,8 +70,9 @@ class WorkerSetup(WorkerPlugin):
         import mcrt
 
         mcrt.register()
-        if self.threads:
-            dr.set_thread_count(self.threads)
+        threads = self.threads or int(os.environ.get("MCRT_WORKER_THREADS") or 0)
+        if threads:
+            dr.set_thread_count(threads)
 
 
 class DaskExecutor:
@@ -93,7 +95,7 @@ class DaskExecutor:
             if workers < 1:
                 raise McrtError(f"--cluster {address}: a local cluster needs at least 1 worker")
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
             client = Client(cluster)
             client.register_plugin(WorkerSetup(variant, max(1, cores // workers)))
             log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,

@@ -42,6 +42,14 @@ class InProcess:
         pass
 
 
+def cluster_status(executor: Any) -> str:
+    """``", workers B/N busy"`` for a progress bar when tasks run on a cluster,
+    else ``""``."""
+    status = getattr(executor, "status", None)
+    text = status() if callable(status) else ""
+    return f", {text}" if text else ""
+
+
 def cluster_address(option: str | None) -> str | None:
     """The cluster to use: the ``--cluster`` option, else ``$MCRT_CLUSTER``
     (empty or unset: none, in-process)."""

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ... import __version__
+from ...core.executor import cluster_status
 from ...core.job import Job, run_job
 from ...core.progress import Progress
 from ...core.stats import PixelStats
@@ -202,11 +203,11 @@ class _Scene:
 
 @dataclass(frozen=True)
 class SeedTask:
-    """What every seed of a cell needs besides its scene and index."""
+    """What the seeds of a scene's cells need besides the scene and the task's
+    index: task ``i`` is seed ``seeds[i % len(seeds)]`` of ``cells[i // len(seeds)]``."""
 
     params: tuple[tuple[str, str], ...]
-    sampler: SamplerSpec
-    spp: int
+    cells: tuple[tuple[SamplerSpec, int], ...]  # (sampler, spp) of each cell, in order
     seeds: tuple[int, ...]
     run: str  # the study run: each process warms a cell up once per run
 
@@ -233,11 +234,12 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle) ->
     from ...render.loaded import planned_scene
 
     planned = planned_scene(scene, dict(task.params))
-    cell = (task.run, getattr(scene, "digest", ""), task.sampler.label, task.spp)
+    spec, spp = task.cells[index // len(task.seeds)]
+    cell = (task.run, getattr(scene, "digest", ""), spec.label, spp)
 
     def run(seed: int) -> FilmRender:
         with quiet_sampler_warnings():
-            sampler = make_sampler(task.sampler.name, task.spp, **task.sampler.params)
+            sampler = make_sampler(spec.name, spp, **spec.params)
         subframes, move = planned.schedule(sampler, None, seed)
         return render.render_film(planned.scene, sampler, seed=seed, passes=subframes,
                                   on_pass=move)
@@ -245,12 +247,13 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle) ->
     if cell not in _warmed:
         run(WARMUP_SEED)  # untimed
         _warmed.add(cell)
-    rendered = run(task.seeds[index])
+    rendered = run(task.seeds[index % len(task.seeds)])
     return SeedRender(rendered.spp, rendered.seconds, np.asarray(rendered.rgb, np.float32))
 
 
 def _collect(total: list[Any] | None, result: Any) -> list[Any]:
-    """Fold of a cell's per-seed results: their list, in seed order."""
+    """Fold of the seeds' results: their list, in task order (a finished cell's
+    are taken out by the study as it records the cell)."""
     return [*(total or []), result]
 
 
@@ -295,11 +298,11 @@ class _Run:
     def scene(self, spec: SceneSpec) -> None:
         """Every cell of one scene, against its reference."""
         ref = self.reference(spec)
-        scene = _Scene(spec)
-        for sampler in self.config.samplers:
-            for spp in self.config.spp:
-                if not self.resume(spec.name, sampler.label, spp):
-                    self.measure(scene, sampler, spp, ref)
+        pending = tuple((sampler, spp) for sampler in self.config.samplers
+                        for spp in self.config.spp
+                        if not self.resume(spec.name, sampler.label, spp))
+        if pending:
+            self.measure(_Scene(spec), pending, ref)
 
     def reference(self, spec: SceneSpec) -> _Reference:
         """Render (or take from the cache) the reference of a scene and record it."""
@@ -353,28 +356,49 @@ class _Run:
         self.bar.update(len(self.config.seeds) + 1)
         return True
 
-    def measure(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference) -> None:
-        """Render one cell (a warm-up, then every seed), summarise and record it."""
+    def measure(self, scene: _Scene, cells: tuple[tuple[SamplerSpec, int], ...],
+                ref: _Reference) -> None:
+        """Render the scene's pending cells (each: a warm-up, then every seed),
+        summarise and record each as soon as its seeds are in.
 
-        name, k = scene.spec.name, len(self.config.seeds)
+        The cells' seeds are the tasks of one job, folded in order (cell by cell,
+        seed by seed); each task renders on whichever process (or cluster worker)
+        runs it, so on a cluster the cells run side by side."""
+        name, seeds = scene.spec.name, self.config.seeds
+        k = len(seeds)
         scene.planned()
-        self.bar.describe(f"{name}: {sampler.label} {spp} spp")
-        current = self.current = {"scene": name, "sampler": sampler.label, "spp": spp,
-                                  "seeds_done": 0, "seeds_total": k}
-        seeds = self.config.seeds
 
-        def on_fold(done: int, _: list[SeedRender]) -> None:
-            current["seeds_done"] = done
-            self.bar.update(2 if done == 1 else 1)  # the first seed's task warmed up too
+        def start(cell: int) -> None:
+            sampler, spp = cells[cell]
+            self.bar.describe(f"{name}: {sampler.label} {spp} spp")
+            self.current = {"scene": name, "sampler": sampler.label, "spp": spp,
+                            "seeds_done": 0, "seeds_total": k}
 
-        # The cell's seeds are the tasks of a job, folded in seed order; each task
-        # renders on whichever process (or cluster worker) runs it.
-        task = SeedTask(tuple(sorted(scene.spec.params.items())), sampler, spp, tuple(seeds),
+        def on_fold(done: int, rendered: list[SeedRender]) -> None:
+            cell, seed = divmod(done - 1, k)
+            assert self.current is not None
+            self.current["seeds_done"] = seed + 1
+            if self.executor is not None:
+                self.bar.postfix(cluster_status(self.executor).strip(", "))
+            self.bar.update(2 if seed == 0 else 1)  # the first seed's task warmed up too
+            if seed + 1 == k:
+                self.record(scene, *cells[cell], ref, rendered[-k:])
+                rendered.clear()  # the finished cell's images are recorded
+                if cell + 1 < len(cells):
+                    start(cell + 1)
+
+        start(0)
+        task = SeedTask(tuple(sorted(scene.spec.params.items())), cells, tuple(seeds),
                         self.token)
         job: Job[SeedRender, list[SeedRender]] = Job(
-            f"{name}/{sampler.label}/{spp}", len(seeds), functools.partial(render_seed, task),
-            _collect, shared={"scene": scene.source()})
-        rendered: list[SeedRender] = run_job(job, self.executor, on_fold=on_fold) or []
+            f"{name}/cells", len(cells) * k, functools.partial(render_seed, task), _collect,
+            shared={"scene": scene.source()})
+        run_job(job, self.executor, on_fold=on_fold)
+
+    def record(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference,
+               rendered: list[SeedRender]) -> None:
+        """Score a cell's seeds, summarise the cell and record it (and save it)."""
+        name, seeds, k = scene.spec.name, self.config.seeds, len(self.config.seeds)
         results = [self.score_seed(name, sampler, spp, seeds[i], ref, r)
                    for i, r in enumerate(rendered)]
         per_seed = [values for values, _ in results]
