@@ -275,6 +275,63 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     Raises :class:`~mcrt.errors.McrtError` for bad arguments or scenes, before
     rendering.
     """
+    setup = _setup(scene_path, params, spp, sampler, seed, spp_per_pass)
+    height, width = setup.shape
+    if cache:  # room for the partial and the finished state (and a temporary copy)
+        remove_stale_temporaries(setup.finished.parent)
+        check_free_space(setup.finished.parent, 3 * STATE_BYTES_PER_PIXEL * width * height,
+                         "the reference cache files")
+    if before_work is not None:  # e.g. the command's own checks (free space for its output)
+        before_work(width, height)
+    start: StatsRender | None = None
+    done, seconds = 0, 0.0
+    if cache:
+        found = load_state(setup.finished, setup.key, setup.plan, setup.shape, complete=True,
+                           filtered=setup.filtered)
+        if found is not None:
+            return setup.result(found[0], found[2], cached=True)
+        found = load_state(setup.partial, setup.key, setup.plan, setup.shape, complete=False,
+                           filtered=setup.filtered)
+        if found is not None:
+            start = StatsRender(found[0], 0, 0, 0.0)
+            done, seconds = found[1], found[2]
+            log.info("resuming reference %s after pass %d of %d", setup.key, done,
+                     setup.plan.passes)
+    return _render(setup, start, done, seconds, cache, progress, on_pass, executor)
+
+
+@dataclass
+class _Setup:
+    """A reference's settings, checked, with its scene planned and its pass plan."""
+
+    params: dict[str, str]
+    sampler: str
+    seed: int
+    source: SceneSource
+    filtered: bool
+    plan: PassPlan
+    key: str
+    shape: tuple[int, int]  # (height, width) of the reference's pixels
+
+    @property
+    def finished(self) -> Path:
+        return cache_paths(self.key)[0]
+
+    @property
+    def partial(self) -> Path:
+        return cache_paths(self.key)[1]
+
+    def result(self, stats: PixelStats | FilteredStats, seconds: float, cached: bool = False,
+               resumed: int = 0) -> Reference:
+        return Reference(stats=stats, spp=self.plan.spp, sampler=self.sampler, seed=self.seed,
+                         passes=self.plan.passes, seconds=seconds, key=self.key, cached=cached,
+                         resumed_passes=resumed, plan=self.plan)
+
+
+def _setup(scene_path: str | Path, params: dict[str, str] | None, spp: int, sampler: str,
+           seed: int, spp_per_pass: int | None) -> _Setup:
+    """Check the arguments, plan the scene (kept for this process's tasks) and its
+    passes: every user error surfaces here, before any pass."""
     params = dict(params or {})
     if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
         raise McrtError(f"a reference needs at least 1 sample per pixel, got {spp!r}")
@@ -285,8 +342,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     planned = plan_scene(scene_path, params)  # the scene `mcrt render` renders (motion too)
     source = SceneSource.of(scene_path, params)
     remember_planned(source, params, planned)  # this process's tasks use it
-    scene = planned.scene
-    film = scene.sensors()[0].film()
+    film = planned.scene.sensors()[0].film()
     grid = film_grid_size(film)
     width, height = int(grid[0]), int(grid[1])
     filtered = not film.rfilter().is_box_filter()
@@ -299,38 +355,20 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     key = reference_key(scene_path, params, sampler, seed, plan, filtered)
     if filtered:  # the developed pixels: the crop window
         width, height = (int(v) for v in film.crop_size())
-    finished_path, partial_path = cache_paths(key)
-    if cache:  # room for the partial and the finished state (and a temporary copy)
-        remove_stale_temporaries(finished_path.parent)
-        check_free_space(finished_path.parent, 3 * STATE_BYTES_PER_PIXEL * width * height,
-                         "the reference cache files")
-    if before_work is not None:  # e.g. the command's own checks (free space for its output)
-        before_work(width, height)
+    return _Setup(params, sampler, seed, source, filtered, plan, key, (height, width))
 
-    def result(stats: PixelStats | FilteredStats, seconds: float, cached: bool = False,
-               resumed: int = 0) -> Reference:
-        return Reference(stats=stats, spp=plan.spp, sampler=sampler, seed=seed,
-                         passes=plan.passes, seconds=seconds, key=key, cached=cached,
-                         resumed_passes=resumed, plan=plan)
 
-    start: StatsRender | None = None
-    done, seconds = 0, 0.0
-    if cache:
-        found = load_state(finished_path, key, plan, (height, width), complete=True,
-                           filtered=filtered)
-        if found is not None:
-            return result(found[0], found[2], cached=True)
-        found = load_state(partial_path, key, plan, (height, width), complete=False,
-                           filtered=filtered)
-        if found is not None:
-            start = StatsRender(found[0], 0, 0, 0.0)
-            done, seconds = found[1], found[2]
-            log.info("resuming reference %s after pass %d of %d", key, done, plan.passes)
-
-    task = ReferencePass(tuple(sorted(params.items())), sampler, plan, seed, filtered)
-    job = Job(key, plan.passes, functools.partial(reference_pass, task), _merge,
-              shared={"scene": source})
-    saver = _StateSaver(key, plan, finished_path, partial_path, seconds, cache)
+def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float, cache: bool,
+            progress: bool, on_pass: Callable[[int, int], None] | None,
+            executor: Any) -> Reference:
+    """Run the passes ``done ..`` as a job (folded onto ``start``), saving the
+    state after each, and return the reference."""
+    plan = setup.plan
+    task = ReferencePass(tuple(sorted(setup.params.items())), setup.sampler, plan, setup.seed,
+                         setup.filtered)
+    job = Job(setup.key, plan.passes, functools.partial(reference_pass, task), _merge,
+              shared={"scene": setup.source})
+    saver = _StateSaver(setup.key, plan, setup.finished, setup.partial, seconds, cache)
     bar = Progress(plan.passes, enabled=progress, desc="reference", initial=done)
     before = start.samples if start is not None else 0
 
@@ -348,12 +386,12 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     except Interrupted as stop:
         if stop.partial is None:
             raise KeyboardInterrupt from None
-        raise Interrupted(result(stop.partial.stats, seconds + stop.partial.seconds,
-                                 resumed=done), stop.done, plan.passes) from None
+        raise Interrupted(setup.result(stop.partial.stats, seconds + stop.partial.seconds,
+                                       resumed=done), stop.done, plan.passes) from None
     finally:
         bar.close()
     assert merged is not None
-    return result(merged.stats, seconds + merged.seconds, resumed=done)
+    return setup.result(merged.stats, seconds + merged.seconds, resumed=done)
 
 
 @dataclass(frozen=True)
