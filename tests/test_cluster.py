@@ -227,3 +227,32 @@ def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
     a = json.loads((tmp_path / "here" / "results.json").read_text())
     b = json.loads((tmp_path / "there" / "results.json").read_text())
     assert _untimed(a) == _untimed(b)
+
+
+def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
+    """The cluster closes after the reference's second pass is folded: the job
+    ends with one McrtError naming the cluster; the folded passes are in the
+    cache and the same reference in this process resumes after them."""
+    from distributed import LocalCluster
+
+    from mcrt.errors import McrtError
+
+    local = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                         dashboard_address=":0")
+    executor = DaskExecutor.connect(local.scheduler_address)
+
+    def close_cluster(index: int, passes: int) -> None:
+        if index == 1:
+            local.close()
+
+    try:
+        with pytest.raises(McrtError, match="lost the Dask cluster") as lost:
+            get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, executor=executor,
+                          on_pass=close_cluster)
+        assert "\n" not in str(lost.value) and "run the same command again" in str(lost.value)
+    finally:
+        executor.close()
+        local.close()
+    resumed = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8)
+    assert resumed.resumed_passes >= 2
+    _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from mcrt.analysis import study
 from mcrt.analysis.pass_plan import plan_passes
 from mcrt.analysis.reference import load_state, save_state
-from mcrt.analysis.study.summary import CellImages
+from mcrt.analysis.study.summary import CellImages, CellRenders
 from mcrt.core import atomic
 from mcrt.core.job import Checkpoint, CheckpointPacer, CheckpointStore
 from mcrt.core.render import render_film
@@ -90,14 +90,22 @@ def kinds(tmp_path_factory) -> dict:
     state = study.StudyState(tmp / "study", "study-key")
     images = CellImages(render=rng.random((6, 7, 3)), error=rng.random((6, 7)),
                         std=rng.random((6, 7)))
+    views = CellRenders(mean=rng.random((6, 7, 3), np.float32),
+                        first=rng.random((6, 7, 3), np.float32),
+                        variance=rng.random((6, 7), np.float32))
     state.add({"scene": "s", "sampler": "jittered", "spp_requested": 4, "mse": 0.0052},
-              images, 1.0)
+              images, 1.0, renders=views)
     out["study-state"] = (state.path.read_bytes(), lambda p: Checkpoint.load(p, "study-key"),
                           Checkpoint.load(state.path, "study-key"), _same)
     image_path = state._image_path("s", "jittered")
     out["study-images"] = (image_path.read_bytes(),
                            lambda p: Checkpoint.load(p, "study-key"),
                            Checkpoint.load(image_path, "study-key"), _same)
+
+    views_path = state._renders_path("s", "jittered", 4)
+    out["study-renders"] = (views_path.read_bytes(),
+                            lambda p: Checkpoint.load(p, "study-key"),
+                            Checkpoint.load(views_path, "study-key"), _same)
 
     n = 16
     tables = pt.generate(n, pt.n_tables(n), pt.TABLE_SEED).astype(np.float32)
@@ -117,7 +125,7 @@ def _damage(data: bytes, how: str, where: int, value: int) -> bytes:
 
 
 KINDS = ["render", "adaptive", "reference-partial", "reference-finished", "study-state",
-         "study-images", "poisson"]
+         "study-images", "study-renders", "poisson"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
