@@ -15,9 +15,6 @@ and ``mi.render(scene)`` renders adaptively. The engine is
 
 from __future__ import annotations
 
-import importlib
-import textwrap
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -25,6 +22,8 @@ import numpy as np
 from ..errors import McrtError
 from . import adaptive
 from .adaptive import PARAMETERS, PARAMETERS_BY_NAME, AdaptiveSettings, Param, render_adaptive
+from .plugins import fill_parameters, register_integrator
+from .plugins import parameter_row as plugin_row
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
@@ -32,21 +31,15 @@ _classes_variant = mi.variant()
 #: Properties that Mitsuba may pass to any sampling integrator (ignored).
 _IGNORED = ("samples_per_pass", "hide_emitters", "timeout")
 
-#: Indentation of the rows of the docstring's ``pluginparameters`` table.
-_ROW = "     "
-
-
 def parameter_row(p: Param) -> str:
     """One row of the plugin's RST parameter table (name, type, text, default)."""
-    text = f"{p.help[:1].upper()}{p.help[1:]}. {p.details} (Default: {p.default})"
-    text = textwrap.fill(" ".join(text.split()), width=86 - len(_ROW),
-                         initial_indent=f"{_ROW}  - ", subsequent_indent=f"{_ROW}    ")
-    return f"{_ROW}* - {p.name}\n{_ROW}  - |{p.kind.__name__}|\n{text}"
+    return plugin_row(p.name, p.kind.__name__,
+                      f"{p.help[:1].upper()}{p.help[1:]}. {p.details} (Default: {p.default})")
 
 
 def _docstring(template: str) -> str:
     """The class docstring: ``template`` with the parameter table filled in."""
-    return template.replace("{parameters}", "\n".join(parameter_row(p) for p in PARAMETERS))
+    return fill_parameters(template, (parameter_row(p) for p in PARAMETERS))
 
 
 class AdaptiveIntegrator(mi.SamplingIntegrator):
@@ -191,15 +184,8 @@ def _block(film: mi.Film, image: np.ndarray) -> mi.ImageBlock:
 
 
 def register() -> None:
-    """Register the ``adaptive`` integrator with the active Mitsuba variant.
-
-    After a variant switch the module is re-imported so that the class derives
-    from the new variant's ``mi.SamplingIntegrator`` (as for the samplers).
-    """
-    module = importlib.import_module(__name__)
-    if mi.variant() != module._classes_variant:
-        module = importlib.reload(module)
-    mi.register_integrator("adaptive", lambda props, cls=module.AdaptiveIntegrator: cls(props))
+    """Register the ``adaptive`` integrator with the active Mitsuba variant."""
+    register_integrator("adaptive", __name__, "AdaptiveIntegrator")
 
 
 __all__ = ["AdaptiveIntegrator", "parameter_row", "register"]

@@ -28,12 +28,11 @@ direction 2D (no Russian roulette: ``max_depth`` bounds the path)::
 
 from __future__ import annotations
 
-import importlib
-
 import drjit as dr
 import mitsuba as mi
 
 from ..errors import SceneError
+from .plugins import register_integrator
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
@@ -155,13 +154,8 @@ class DistributionIntegrator(mi.SamplingIntegrator):
 
 
 def register() -> None:
-    """Register the ``distribution`` integrator with the active Mitsuba variant
-    (re-importing the module after a variant switch, as the samplers do)."""
-    module = importlib.import_module(__name__)
-    if mi.variant() != module._classes_variant:
-        module = importlib.reload(module)
-    mi.register_integrator("distribution",
-                           lambda props, cls=module.DistributionIntegrator: cls(props))
+    """Register the ``distribution`` integrator with the active Mitsuba variant."""
+    register_integrator("distribution", __name__, "DistributionIntegrator")
 
 
 __all__ = ["DistributionIntegrator", "register"]

@@ -14,8 +14,6 @@ per pixel for visibility and shades once per surface per pixel (see
 
 from __future__ import annotations
 
-import importlib
-import textwrap
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +24,8 @@ import numpy as np
 from ..core.trace import integrator_sample
 from ..errors import McrtError
 from . import multisample as ms
+from .plugins import fill_parameters, register_integrator
+from .plugins import parameter_row as plugin_row
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
@@ -58,19 +58,14 @@ PARAMETERS = (
 )
 PARAMETERS_BY_NAME = {p.name: p for p in PARAMETERS}
 
-_ROW = "     "
-
-
 def parameter_row(p: Param) -> str:
     """One row of the plugin's RST parameter table."""
-    text = f"{p.help[:1].upper()}{p.help[1:]}. (Default: ``{p.default}``)"
-    text = textwrap.fill(" ".join(text.split()), width=86 - len(_ROW),
-                         initial_indent=f"{_ROW}  - ", subsequent_indent=f"{_ROW}    ")
-    return f"{_ROW}* - {p.name}\n{_ROW}  - |string|\n{text}"
+    return plugin_row(p.name, "string",
+                      f"{p.help[:1].upper()}{p.help[1:]}. (Default: ``{p.default}``)")
 
 
 def _docstring(template: str) -> str:
-    return template.replace("{parameters}", "\n".join(parameter_row(p) for p in PARAMETERS))
+    return fill_parameters(template, (parameter_row(p) for p in PARAMETERS))
 
 
 @dataclass
@@ -221,13 +216,8 @@ def _choice(p: Param, value: Any) -> str:
 
 
 def register() -> None:
-    """Register the ``multisample`` integrator with the active Mitsuba variant
-    (re-importing the module after a variant switch, as the samplers do)."""
-    module = importlib.import_module(__name__)
-    if mi.variant() != module._classes_variant:
-        module = importlib.reload(module)
-    mi.register_integrator("multisample",
-                           lambda props, cls=module.MultisampleIntegrator: cls(props))
+    """Register the ``multisample`` integrator with the active Mitsuba variant."""
+    register_integrator("multisample", __name__, "MultisampleIntegrator")
 
 
 __all__ = ["PARAMETERS", "MultisampleIntegrator", "ShadingCounts", "register"]

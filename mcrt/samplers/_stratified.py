@@ -45,12 +45,20 @@ def epoch_key(dim_key: mi.UInt32, epoch: mi.UInt32) -> mi.UInt32:
     return dim_key ^ (epoch * GOLDEN_U32)
 
 
+def permuted_stratum(dim_key: mi.UInt32, sample: mi.UInt32, n: int, active: Mask = True
+                     ) -> tuple[mi.UInt32, mi.UInt32, mi.UInt32, mi.UInt32]:
+    """``(epoch, rank, key, stratum)`` of a sample among ``n`` strata per epoch:
+    its epoch and rank in it, the epoch's key and the stratum the rank takes
+    (a permutation of the ``n`` strata per epoch and dimension)."""
+    epoch, rank = split_sample(sample, n)
+    key = epoch_key(dim_key, epoch)
+    return epoch, rank, key, permute(rank, n, key, active)
+
+
 def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
                   active: Mask = True) -> mi.Float:
     """One point per stratum of ``n`` equal 1D strata per epoch."""
-    epoch, rank = split_sample(sample, n)
-    key = epoch_key(dim_key, epoch)
-    cell = permute(rank, n, key, active)
+    epoch, rank, key, cell = permuted_stratum(dim_key, sample, n, active)
     u = unit_float(hash_extend(key, rank))
     t = jittered_offset(u, jitter, epoch_offset(epoch, GOLDEN_FRAC_U32))
     return place_in_stratum(cell, n, t)
@@ -59,10 +67,7 @@ def stratified_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, jitter: float,
 def stratified_2d(dim_key: mi.UInt32, sample: mi.UInt32, k: int, jitter: float,
                   active: Mask = True) -> mi.Point2f:
     """One point per cell of a ``k x k`` grid per epoch (``n = k^2`` points)."""
-    n = k * k
-    epoch, rank = split_sample(sample, n)
-    key = epoch_key(dim_key, epoch)
-    cell = permute(rank, n, key, active)
+    epoch, rank, key, cell = permuted_stratum(dim_key, sample, k * k, active)
     row, col = split_sample(cell, k)
     h = hash_extend(key, rank)
     tx = jittered_offset(unit_float(h), jitter, epoch_offset(epoch, R2_X_U32))

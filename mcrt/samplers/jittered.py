@@ -9,7 +9,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..errors import SamplerError
-from ._hash import hash_extend, mix32, permute, unit_float
+from ._hash import hash_extend, mix32, unit_float
 from ._strata import (
     GOLDEN_FRAC_U32,
     MAX_STRATA,
@@ -18,7 +18,7 @@ from ._strata import (
     epoch_offset,
     place_in_stratum,
 )
-from ._stratified import epoch_key, split_sample, stratified_1d, stratified_2d
+from ._stratified import permuted_stratum, split_sample, stratified_1d, stratified_2d
 from ._types import Mask
 from .base import McrtSampler
 
@@ -160,9 +160,7 @@ def grid_1d(dim_key: mi.UInt32, sample: mi.UInt32, n: int, film: mi.Bool,
             active: Mask = True) -> mi.Float:
     """``n`` regular 1D strata per epoch: cell centres where ``film``, else the
     lattice shifted by one uniform offset (see :class:`UniformGridSampler`)."""
-    epoch, rank = split_sample(sample, n)
-    key = epoch_key(dim_key, epoch)
-    cell = permute(rank, n, key, active)
+    epoch, _, key, cell = permuted_stratum(dim_key, sample, n, active)
     t = dr.select(film, epoch_offset(epoch, GOLDEN_FRAC_U32), unit_float(_shift(key, n)))
     return place_in_stratum(cell, n, t)
 
@@ -171,9 +169,7 @@ def grid_2d(dim_key: mi.UInt32, sample: mi.UInt32, k: int, film: mi.Bool,
             active: Mask = True) -> mi.Point2f:
     """A ``k x k`` grid per epoch: cell centres where ``film``, else shifted."""
     n = k * k
-    epoch, rank = split_sample(sample, n)
-    key = epoch_key(dim_key, epoch)
-    cell = permute(rank, n, key, active)
+    epoch, _, key, cell = permuted_stratum(dim_key, sample, n, active)
     row, col = split_sample(cell, k)
     h = _shift(key, n)
     tx = dr.select(film, epoch_offset(epoch, R2_X_U32), unit_float(h))
