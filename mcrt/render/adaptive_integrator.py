@@ -22,14 +22,12 @@ import numpy as np
 from ..errors import McrtError
 from . import adaptive
 from .adaptive import PARAMETERS, PARAMETERS_BY_NAME, AdaptiveSettings, Param, render_adaptive
-from .plugins import fill_parameters, register_integrator
+from .plugins import fill_parameters, register_integrator, wrapper_properties
 from .plugins import parameter_row as plugin_row
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
 
-#: Properties that Mitsuba may pass to any sampling integrator (ignored).
-_IGNORED = ("samples_per_pass", "hide_emitters", "timeout")
 
 def parameter_row(p: Param) -> str:
     """One row of the plugin's RST parameter table (name, type, text, default)."""
@@ -91,24 +89,9 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        nested = []
-        values = {}
-        for name in props.keys():
-            value = props[name]
-            if isinstance(value, mi.Integrator):
-                nested.append(value)
-            elif name in PARAMETERS_BY_NAME:
-                values[name] = _typed(PARAMETERS_BY_NAME[name], value)
-            elif name not in _IGNORED:
-                raise McrtError(f"adaptive: unknown parameter {name!r}; expected one of "
-                                f"{', '.join(PARAMETERS_BY_NAME)}")
-        if len(nested) > 1:
-            raise McrtError("adaptive: expected one nested integrator, got "
-                            f"{len(nested)}")
-        inner = nested[0] if nested else mi.load_dict({"type": "path"})
-        if not isinstance(inner, mi.SamplingIntegrator):
-            raise McrtError(f"adaptive: the nested integrator must be a sampling integrator "
-                            f"(path, direct, ...), got {type(inner).__name__}")
+        inner, values = wrapper_properties(
+            "adaptive", props, PARAMETERS_BY_NAME,
+            lambda name, value: _typed(PARAMETERS_BY_NAME[name], value))
         if getattr(inner, "is_adaptive", False):
             raise McrtError("adaptive: cannot nest an adaptive integrator in another")
         self.nested = inner

@@ -24,14 +24,12 @@ import numpy as np
 from ..core.trace import integrator_sample
 from ..errors import McrtError
 from . import multisample as ms
-from .plugins import fill_parameters, register_integrator
+from .plugins import fill_parameters, register_integrator, wrapper_properties
 from .plugins import parameter_row as plugin_row
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
 
-#: Properties that Mitsuba may pass to any sampling integrator (ignored).
-_IGNORED = ("samples_per_pass", "hide_emitters", "timeout")
 
 
 @dataclass(frozen=True)
@@ -133,22 +131,9 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        nested, values = [], {}
-        for name in props.keys():
-            value = props[name]
-            if isinstance(value, mi.Integrator):
-                nested.append(value)
-            elif name in PARAMETERS_BY_NAME:
-                values[name] = _choice(PARAMETERS_BY_NAME[name], value)
-            elif name not in _IGNORED:
-                raise McrtError(f"multisample: unknown parameter {name!r}; expected one of "
-                                f"{', '.join(PARAMETERS_BY_NAME)}")
-        if len(nested) > 1:
-            raise McrtError(f"multisample: expected one nested integrator, got {len(nested)}")
-        inner = nested[0] if nested else mi.load_dict({"type": "path"})
-        if not isinstance(inner, mi.SamplingIntegrator):
-            raise McrtError("multisample: the nested integrator must be a sampling integrator "
-                            f"(path, direct, ...), got {type(inner).__name__}")
+        inner, values = wrapper_properties(
+            "multisample", props, PARAMETERS_BY_NAME,
+            lambda name, value: _choice(PARAMETERS_BY_NAME[name], value))
         if getattr(inner, "is_adaptive", False) or isinstance(inner, MultisampleIntegrator):
             raise McrtError("multisample: cannot nest an adaptive or multisample integrator")
         if mi.is_spectral:

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import importlib
 import textwrap
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import mitsuba as mi
 
@@ -43,3 +44,36 @@ def parameter_row(name: str, kind: str, text: str) -> str:
 def fill_parameters(template: str, rows: Iterable[str]) -> str:
     """``template`` with its ``{parameters}`` placeholder replaced by the rows."""
     return template.replace("{parameters}", "\n".join(rows))
+
+
+#: Properties Mitsuba may pass to any sampling integrator (a wrapper ignores them).
+IGNORED = ("samples_per_pass", "hide_emitters", "timeout")
+
+
+def wrapper_properties(plugin: str, props: mi.Properties, declared: Iterable[str],
+                       convert: Callable[[str, Any], Any]) -> tuple[mi.SamplingIntegrator,
+                                                                    dict[str, Any]]:
+    """A wrapping integrator's properties: its one nested sampling integrator
+    (default ``path``) and its declared parameters, each through
+    ``convert(name, value)``; unknown names and a wrong or doubled nested
+    integrator are one-line :class:`~mcrt.errors.McrtError`."""
+    from ..errors import McrtError
+
+    names = list(declared)
+    nested, values = [], {}
+    for name in props.keys():
+        value = props[name]
+        if isinstance(value, mi.Integrator):
+            nested.append(value)
+        elif name in names:
+            values[name] = convert(name, value)
+        elif name not in IGNORED:
+            raise McrtError(f"{plugin}: unknown parameter {name!r}; expected one of "
+                            f"{', '.join(names)}")
+    if len(nested) > 1:
+        raise McrtError(f"{plugin}: expected one nested integrator, got {len(nested)}")
+    inner = nested[0] if nested else mi.load_dict({"type": "path"})
+    if not isinstance(inner, mi.SamplingIntegrator):
+        raise McrtError(f"{plugin}: the nested integrator must be a sampling integrator "
+                        f"(path, direct, ...), got {type(inner).__name__}")
+    return inner, values
