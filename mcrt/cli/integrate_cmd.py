@@ -11,7 +11,7 @@ from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_c
 from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
-from . import _common
+from . import _common, _integrate_peers
 from ._common import ensure_writable_dir, examples, non_negative_int, positive_int
 
 DEFAULT_SAMPLERS = ("independent", "jittered", "poisson_disk")
@@ -35,20 +35,29 @@ def add_parser(commands) -> None:
                     "giving the MSE and its uncertainty. Prints a table and the fitted slope "
                     "of MSE against N per sampler, and writes integrate_<INTEGRAND>.png/.csv/"
                     ".json to DIR. pi: 4 x quarter-disc indicator (estimates pi); disk: "
-                    "indicator of a disc (an edge); gaussian: a smooth bump.",
+                    "indicator of a disc (an edge); gaussian: a smooth bump. The peers' "
+                    "benchmarks: utk (UTK's random Heaviside and Gaussian integrands, MSE at "
+                    "N = 16/256/4096 next to UTK's published table) and funcsamp2d "
+                    "(Christensen's 18 test functions, mean |error| at N = 16..1024).",
         epilog=examples("mcrt integrate disk",
-                        "mcrt integrate gaussian --sampler jittered,sobol --max-n 16384"))
-    p.add_argument("integrand", choices=tuple(INTEGRANDS), metavar="INTEGRAND",
-                   help=f"one of {', '.join(INTEGRANDS)}")
-    p.add_argument("--sampler", default=",".join(DEFAULT_SAMPLERS), metavar="NAME[,NAME...]",
-                   help="comma-separated samplers (default %(default)s)")
+                        "mcrt integrate gaussian --sampler jittered,sobol --max-n 16384",
+                        "mcrt integrate utk", "mcrt integrate funcsamp2d"))
+    choices = (*INTEGRANDS, *_integrate_peers.SUITES)
+    p.add_argument("integrand", choices=choices, metavar="INTEGRAND",
+                   help=f"one of {', '.join(choices)}")
+    p.add_argument("--sampler", default=None, metavar="NAME[,NAME...]",
+                   help=f"comma-separated samplers (default {','.join(DEFAULT_SAMPLERS)}; utk / "
+                        f"funcsamp2d: {','.join(_integrate_peers.DEFAULT_SAMPLERS)})")
     p.add_argument("--min-n", type=positive_int, default=16, metavar="N",
                    help="smallest sample count (default 16)")
     p.add_argument("--max-n", type=positive_int, default=65536, metavar="N",
                    help="largest sample count (default 65536)")
-    p.add_argument("--trials", type=positive_int, default=DEFAULT_TRIALS, metavar="P",
+    p.add_argument("--trials", type=positive_int, default=None, metavar="P",
                    help=f"pixels (independent trials) per N (default {DEFAULT_TRIALS}); fewer "
-                        "at large N, see --budget")
+                        "at large N, see --budget; utk / funcsamp2d: point sets per N (default "
+                        "16 / 100, as published)")
+    p.add_argument("--integrands", type=positive_int, default=4096, metavar="M",
+                   help="utk: random integrands per family (default 4096, as published)")
     p.add_argument("--budget", type=positive_int, default=POINT_BUDGET, metavar="POINTS",
                    help=f"at most this many points per N and sampler (default {POINT_BUDGET}; "
                         "trials = min(P, POINTS / N), at least 16)")
@@ -68,6 +77,9 @@ def sample_counts(min_n: int, max_n: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    peer = args.integrand in _integrate_peers.SUITES
+    if args.sampler is None:
+        args.sampler = ",".join(_integrate_peers.DEFAULT_SAMPLERS if peer else DEFAULT_SAMPLERS)
     samplers = [check_sampler_name(s.strip()) for s in args.sampler.split(",") if s.strip()]
     if not samplers:
         raise McrtError("--sampler: give at least one sampler")
@@ -77,11 +89,17 @@ def run(args: argparse.Namespace) -> int:
         raise McrtError(f"--min-n ({args.min_n}) is larger than --max-n ({args.max_n})")
     if args.max_n > 1 << 20:
         raise McrtError(f"--max-n: at most {1 << 20}, got {args.max_n}")
-    if args.trials < 2 or args.trials > MAX_TRIALS:
+    if args.trials is not None and (args.trials < 2 or args.trials > MAX_TRIALS):
         raise McrtError(f"--trials: between 2 and {MAX_TRIALS}, got {args.trials}")
+    if args.integrands > 1 << 16:
+        raise McrtError(f"--integrands: at most {1 << 16}, got {args.integrands}")
     counts = sample_counts(args.min_n, args.max_n)
     out = ensure_writable_dir(Path(args.output or f"out/integrate_{args.integrand}"))
     _common.require_space(out, _common.PLOTS_BYTES, "the plots")
+    if peer:
+        return _integrate_peers.run(args, samplers, out)
+    if args.trials is None:
+        args.trials = DEFAULT_TRIALS
     integrand = INTEGRANDS[args.integrand]
 
     bar = None

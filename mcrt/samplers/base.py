@@ -50,6 +50,10 @@ class McrtSampler(mi.Sampler):
     """
 
     plugin_name: ClassVar[str] = ""
+    #: Whether sample ``j`` of a pixel is the same point whatever the sample count
+    #: (one sequence per pixel): renderers that trace a pixel in batches then continue
+    #: the sequence where the last batch stopped (adaptive sampling).
+    progressive: ClassVar[bool] = False
     #: The C++ class whose base implementations ``_run_base`` calls.
     _cpp_base: ClassVar[type] = mi.Sampler
 

@@ -48,6 +48,7 @@ class SobolSampler(McrtSampler):
     """
 
     plugin_name = "sobol"
+    progressive = True
 
     def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
         return padded_sobol_1d(sample, key)

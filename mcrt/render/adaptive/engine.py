@@ -347,7 +347,12 @@ def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, 
     lane = dr.arange(mi.UInt32, lanes)
     pixel_index = dr.gather(mi.UInt32, mi.UInt32(ids.astype(np.uint32)), lane // m)
     sampler.set_sample_count(m)
-    if ours:
+    if ours and getattr(sampler, "progressive", False):
+        # One sequence per pixel (sobol): this batch continues it where the pixel's
+        # previous batches stopped, so its samples so far are always a prefix.
+        start = dr.gather(mi.UInt32, mi.UInt32(acc.traced[ids].astype(np.uint32)), lane // m)
+        sampler.seed_lanes(wave_seed, pixel_index, lane % m + start)
+    elif ours:
         # Epoch k of the pixel's sequence at sample count m: a fresh pattern.
         sampler.seed_lanes(wave_seed, pixel_index, lane % m + dr.opaque(mi.UInt32, k * m))
     else:
