@@ -61,6 +61,21 @@ Calibration against the image's own noise (sign-flip null)
     (32 draws each): mean z ~0 and sd 0.97 for both statistics, largest
     |z| 3.9.
 
+Filtered films (``correlation``)
+    A reconstruction filter wider than a pixel (tent, gaussian, mitchell, ...)
+    splats every sample into several pixels, so even unaliased noise is
+    correlated between neighbours: its spectrum is the filter's aliased
+    transfer function ``S(f)`` (:mod:`mcrt.analysis.filter_noise`), which is
+    low-pass, and the sign-flip null above (white) would call it ``aliased``.
+    Given the filter's per-axis pixel correlation ``c(d)``
+    (:func:`~mcrt.analysis.filter_noise.filter_correlation`), the null draws
+    are *filtered* sign flips: the error is whitened by ``1 / sqrt(S)`` (in the
+    DFT, floored at :data:`WHITEN_FLOOR` of the peak), its pixels' signs are
+    flipped, and the result is filtered again by ``sqrt(S)``. The draws keep
+    the per-pixel error magnitudes and have exactly the filter's correlation,
+    while a coherent pattern is destroyed as before; the observed statistics
+    are unchanged. With a box filter (``c = [1]``) this is the white null.
+
 :func:`white_noise_ratio_sd` gives the exact (first-order) standard deviation
 of the ratio for homoscedastic white Gaussian noise, from the number of bins in
 and out of the band and the window's bin-to-bin correlation: it is the
@@ -74,6 +89,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .filter_noise import noise_spectrum
 from .metrics import luminance
 
 #: Low-band cutoff ``f_c`` in cycles per pixel (Nyquist is 0.5).
@@ -94,6 +110,10 @@ Z_THRESHOLD = 5.0
 
 #: Smallest image side the measures accept (cells must hold frequency bins).
 MIN_SIZE = 2 * DEFAULT_CELLS
+
+#: Whitening of a filtered error: the filter's noise spectrum is floored at this
+#: share of its peak (amplifies by at most 1 / sqrt of it).
+WHITEN_FLOOR = 1e-3
 
 
 def _hann(n: int) -> np.ndarray:
@@ -290,12 +310,28 @@ def _z(value: float, mean: float, sd: float) -> float:
     return 0.0 if value == mean else float(np.sign(value - mean)) * float("inf")
 
 
+def _null_draws(e: np.ndarray, we: np.ndarray, window: np.ndarray,
+                correlation: np.ndarray | None):
+    """``signs -> windowed null image``: white sign flips of the error, or
+    filtered ones for a filter's ``correlation`` (module doc)."""
+    if correlation is None or np.asarray(correlation).size <= 1:
+        return lambda signs: signs * we
+    spectrum = noise_spectrum(np.asarray(correlation, dtype=np.float64), e.shape)
+    amplitude = np.sqrt(np.maximum(spectrum, WHITEN_FLOOR * spectrum.max()))
+    white = np.fft.ifft2(np.fft.fft2(e) / amplitude).real
+    return lambda signs: window * np.fft.ifft2(np.fft.fft2(signs * white) * amplitude).real
+
+
 def aliasing_score(error: np.ndarray, cutoff: float = DEFAULT_CUTOFF, cells: int = DEFAULT_CELLS,
-                   null_draws: int = DEFAULT_NULL_DRAWS, seed: int = 0) -> AliasingScore:
+                   null_draws: int = DEFAULT_NULL_DRAWS, seed: int = 0,
+                   correlation: np.ndarray | None = None) -> AliasingScore:
     """Score an error image (2D, or RGB reduced to luminance): see the module doc.
 
     ``null_draws`` random sign flips (generator seeded with ``seed``) estimate the
     null distribution of both statistics for *this* image's error magnitudes.
+    ``correlation``: the film filter's per-axis pixel correlation
+    (:func:`~mcrt.analysis.filter_noise.filter_correlation`; None or ``[1]``
+    for a box filter), which the null draws then share.
     """
     e = np.asarray(error, dtype=np.float64)
     if e.ndim == 3:
@@ -308,12 +344,13 @@ def aliasing_score(error: np.ndarray, cutoff: float = DEFAULT_CUTOFF, cells: int
     layout = _layout(e.shape, float(cutoff), int(cells))
     we = layout.window * e
     ratio, peak = _statistics(_half_power(we), layout)
+    draw = _null_draws(e, we, layout.window, correlation)
     rng = np.random.default_rng(seed)
     ratios, peaks = [], []
     for start in range(0, null_draws, 8):  # batches bound memory
         k = min(8, null_draws - start)
         signs = rng.integers(0, 2, size=(k, *e.shape)) * 2.0 - 1.0
-        r, p = _statistics(_half_power(signs * we), layout)
+        r, p = _statistics(_half_power(draw(signs)), layout)
         ratios.append(r)
         peaks.append(p)
     null_ratio = np.concatenate(ratios)

@@ -150,7 +150,8 @@ def _normal_quantile(p: float) -> float:
 
 def bias(image: np.ndarray, reference: np.ndarray, image_variance: np.ndarray | None = None,
          reference_variance: np.ndarray | None = None,
-         confidence: float = 0.95) -> BiasEstimate:
+         confidence: float = 0.95, variance_factor: float = 1.0,
+         correlated_channels: bool = False) -> BiasEstimate:
     """Mean of ``image - reference`` over pixels and channels, with a CI.
 
     ``image_variance`` and ``reference_variance`` are the per-pixel variances
@@ -161,6 +162,15 @@ def bias(image: np.ndarray, reference: np.ndarray, image_variance: np.ndarray | 
     zero: a deterministic render (e.g. the uniform grid) has none. With neither
     given, the spread of the differences themselves is used,
     ``std(x - r) / sqrt(M)`` (valid for i.i.d. errors only).
+
+    Correlated values (with variances given): ``variance_factor`` multiplies the
+    summed variance (a film filter wider than a pixel correlates neighbours:
+    :func:`mcrt.analysis.filter_noise.variance_factor`, 3.1 for a gaussian);
+    ``correlated_channels`` takes the last axis as a pixel's channels and their
+    errors as perfectly correlated (exact for grey scenes, an upper bound
+    otherwise): a pixel's channel mean then has the variance
+    ``(mean_c sqrt(v_c))^2``, where independent channels would give a third of
+    ``mean_c v_c`` (the interval ``sqrt(3)`` too narrow on grey images).
     """
     image, reference = _pair(image, reference)
     diff = image - reference
@@ -176,7 +186,11 @@ def bias(image: np.ndarray, reference: np.ndarray, image_variance: np.ndarray | 
                 if (v < 0).any():
                     raise ValueError("variances must be non-negative")
                 total = total + v
-        se = float(math.sqrt(total.sum()) / m)
+        if correlated_channels and diff.ndim > 1:
+            per_pixel = np.sqrt(total).mean(axis=-1) ** 2  # variance of the channel mean
+            se = float(math.sqrt(per_pixel.sum() * variance_factor) / per_pixel.size)
+        else:
+            se = float(math.sqrt(total.sum() * variance_factor) / m)
     z = _normal_quantile(0.5 * (1.0 + confidence))
     return BiasEstimate(value=value, standard_error=se, low=value - z * se,
                         high=value + z * se, confidence=confidence)

@@ -9,10 +9,17 @@
 - ``textures/zoneplate.png``: a 1024 x 1024 zone plate ``0.5 + 0.5 cos(pi k r^2)``
   (k = 96, r = 1 at the image's half width): mapped onto ``bitmap.xml``'s plane
   it reaches 1.5 cycles per *screen* pixel at the frame's edge (3x Nyquist),
-  0.19 cycles per texel (well inside the bitmap's own band).
+  0.19 cycles per texel (well inside the bitmap's own band). Only one quadrant
+  (512 x 512, from the centre outwards) is stored: the plate is symmetric in x
+  and y, and ``bitmap.xml`` mirrors it (``wrap_mode`` mirror, ``to_uv`` maps the
+  plane's uv to [-1, 1]^2), which gives the full plate's texel grid exactly
+  (renders are bit-identical to the full 1024^2 bitmap's, bilinear and nearest).
 - ``textures/zoneplate_prefiltered.png``: the same zone plate box-filtered to
   one texel per screen pixel (the mean of each 8 x 8 block), the mip level a
-  trilinear texture unit would pick for this view.
+  trilinear texture unit would pick for this view; again one quadrant (64 x 64).
+
+The files are committed (about 0.25 MB in all), so the scenes render in a fresh
+clone; this script only documents and reproduces them.
 - ``textures/checker_prefiltered.png``: the ``checkerboard`` texture of
   ``checker.xml`` (10 degrees rotated, ``$checks`` periods across) box-filtered
   over one screen pixel, one texel per screen pixel, texel centres on pixel
@@ -59,6 +66,14 @@ def zone_plate(size: int = 1024, k: float = 96.0) -> np.ndarray:
     c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
     r2 = c[None, :] ** 2 + c[:, None] ** 2
     return 0.5 + 0.5 * np.cos(np.pi * k * r2)
+
+
+def quadrant(image: np.ndarray) -> np.ndarray:
+    """The lower-right quadrant of a centre-symmetric image (rows and columns
+    from the centre outwards), which a mirrored lookup extends to the whole."""
+    h, w = image.shape
+    assert np.allclose(image, image[::-1]) and np.allclose(image, image[:, ::-1]), "not symmetric"
+    return image[h // 2:, w // 2:]
 
 
 def checker(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -112,10 +127,11 @@ def main() -> None:
     (HERE / "meshes").mkdir(exist_ok=True)
     (HERE / "meshes" / "facets.ply").write_text(facets())
     plate = zone_plate()
-    write_grey_png(HERE / "textures" / "zoneplate.png", plate)
     block = plate.shape[0] // SCREEN
     small = plate.reshape(SCREEN, block, SCREEN, block).mean(axis=(1, 3))
-    write_grey_png(HERE / "textures" / "zoneplate_prefiltered.png", small)
+    # one quadrant each (the plate is symmetric; bitmap.xml mirrors it)
+    write_grey_png(HERE / "textures" / "zoneplate.png", quadrant(plate))
+    write_grey_png(HERE / "textures" / "zoneplate_prefiltered.png", quadrant(small))
     # the reflectance itself: color1 0.1 + (color0 0.9 - color1) x the share of color0
     write_grey_png(HERE / "textures" / "checker_prefiltered.png",
                    0.1 + 0.8 * prefiltered_checker())

@@ -24,6 +24,7 @@ from ...core.progress import Progress
 from ...core.stats import PixelStats
 from ...errors import McrtError
 from ..aliasing import aliasing_score
+from ..filter_noise import filter_correlation, variance_factor
 from ..metrics import REL_MSE_EPSILON, delta_e_2000, error_map, mse, reference_noise_floor, rel_mse
 from .config import WARMUP_SEED, SamplerSpec, SceneSpec, StudyConfig, cell_keys, check_config
 from .store import StudyState, reference_fingerprint
@@ -182,6 +183,15 @@ class _Scene:
         self.spec = spec
         self._planned: PlannedScene | None = None
         self._source: SceneSource | None = None
+        self._correlation: np.ndarray | None = None
+
+    def pixel_correlation(self) -> np.ndarray:
+        """Per-axis correlation of neighbouring pixels' noise from the film's
+        reconstruction filter (``[1]``: box; :mod:`mcrt.analysis.filter_noise`)."""
+        if self._correlation is None:
+            film = self.planned().scene.sensors()[0].film()
+            self._correlation = filter_correlation(film.rfilter())
+        return self._correlation
 
     def planned(self) -> PlannedScene:
         from ...render.plan import plan_scene
@@ -399,13 +409,15 @@ class _Run:
                rendered: list[SeedRender]) -> None:
         """Score a cell's seeds, summarise the cell and record it (and save it)."""
         name, seeds, k = scene.spec.name, self.config.seeds, len(self.config.seeds)
-        results = [self.score_seed(name, sampler, spp, seeds[i], ref, r)
+        correlation = scene.pixel_correlation()
+        results = [self.score_seed(name, sampler, spp, seeds[i], ref, r, correlation)
                    for i, r in enumerate(rendered)]
         per_seed = [values for values, _ in results]
         renders = [rgb for _, rgb in results]
         stats = PixelStats.from_images(renders)
         cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
-                              ref.floor, k, rfilter=scene.spec.rfilter)
+                              ref.floor, k, rfilter=scene.spec.rfilter,
+                              variance_factor=variance_factor(correlation))
         images = None
         if spp == self.config.image_spp:
             images = self.images[(name, sampler.label)] = cell_images(renders, stats, ref.mean)
@@ -416,9 +428,11 @@ class _Run:
             self.state.add(cell, images, self.seconds(), renders=views)
 
     def score_seed(self, name: str, sampler: SamplerSpec, spp: int, seed: int,
-                   ref: _Reference, rendered: SeedRender) -> tuple[dict[str, Any], np.ndarray]:
+                   ref: _Reference, rendered: SeedRender, correlation: np.ndarray | None = None
+                   ) -> tuple[dict[str, Any], np.ndarray]:
         """A seed's metrics (NaN/Inf pixels counted, logged and measured as zero
-        error); returns the per-seed values and the image."""
+        error); returns the per-seed values and the image. ``correlation``: the
+        film filter's pixel correlation, for the aliasing score's null model."""
         rgb = np.asarray(rendered.rgb, dtype=np.float64)
         if rgb.shape != ref.mean.shape:
             raise McrtError(f"scene {name!r}: render shape {rgb.shape} "
@@ -430,7 +444,8 @@ class _Run:
                         name, sampler.label, spp, seed, int(bad.sum()))
             clean = np.where(bad[..., None], ref.mean, rgb)
         score = aliasing_score(error_map(clean, ref.mean),
-                               null_draws=self.config.aliasing_draws, seed=seed)
+                               null_draws=self.config.aliasing_draws, seed=seed,
+                               correlation=correlation)
         values = {"seed": seed, "spp": int(rendered.spp), "seconds": rendered.seconds,
                   "mse": mse(clean, ref.mean), "rel_mse": rel_mse(clean, ref.mean),
                   "delta_e": delta_e_2000(clean, ref.mean),

@@ -64,10 +64,13 @@ def _verdict(ratio_z: float, peak_z: float) -> str:
 
 def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[dict[str, Any]],
                    stats: PixelStats, ref_mean: np.ndarray, ref_var: np.ndarray,
-                   floor: float, k: int, rfilter: str = "") -> dict[str, Any]:
+                   floor: float, k: int, rfilter: str = "",
+                   variance_factor: float = 1.0) -> dict[str, Any]:
     """The cell of (scene, sampler, spp) from its per-seed records and the pixel
     moments of its ``k`` renders, against a reference (mean, variance, noise floor);
-    ``rfilter``: the film filter of a ``filters`` study ("" otherwise)."""
+    ``rfilter``: the film filter of a ``filters`` study ("" otherwise);
+    ``variance_factor``: what the film's filter multiplies the variance of a mean
+    over pixels by (:func:`mcrt.analysis.filter_noise.variance_factor`; 1: box)."""
     seconds, seconds_sd = _mean_sd([r["seconds"] for r in per_seed])
     mse_mean, mse_sd = _mean_sd([r["mse"] for r in per_seed])
     rel_mean, rel_sd = _mean_sd([r["rel_mse"] for r in per_seed])
@@ -75,7 +78,10 @@ def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[di
     excess = mse_mean - floor
     resolved = bool(mse_mean > RESOLVED_FACTOR * floor)
     # The seed-averaged image: its pixels' variance is (between-seed variance) / K.
-    b = bias(stats.mean, ref_mean, image_variance=stats.variance / k, reference_variance=ref_var)
+    # Its bias interval counts the filter's correlation of neighbouring pixels and
+    # takes a pixel's channels as correlated (grey scenes: perfectly).
+    b = bias(stats.mean, ref_mean, image_variance=stats.variance / k, reference_variance=ref_var,
+             variance_factor=variance_factor, correlated_channels=True)
     ratio_z, peak_z = _mean(per_seed, "ratio_z"), _mean(per_seed, "peak_z")
     return record(CELL_FIELDS, {
         "scene": scene, "filter": rfilter, "sampler": sampler.label, "plugin": sampler.name,
