@@ -36,6 +36,17 @@ COMMANDS: dict[str, str] = {
     "plan": "plan_cmd",
 }
 
+#: Subcommand -> what it does (``mcrt --help``, the subcommand's own parser, README).
+SUMMARIES: dict[str, str] = {
+    "render": "render a scene with a chosen sampler",
+    "demo": "render the shipped scenes with each sampler and compare",
+    "pattern": "analyse a sampler's point sets: spectrum, anisotropy, discrepancy",
+    "integrate": "Monte-Carlo integration bench: error vs N per sampler",
+    "reference": "render a cached, resumable high-spp reference with error bars",
+    "compare": "run a sampling study and write an HTML/CSV/JSON report",
+    "plan": "show which distribution effects a scene gets and how they are sampled",
+}
+
 #: Options of ``mcrt`` itself (before the subcommand) that take no value.
 _TOP_LEVEL_FLAGS = ("-q", "--quiet")
 
@@ -109,10 +120,13 @@ def _add_global_options(parser: argparse.ArgumentParser, after_command: bool) ->
                        help="print the versions of mcrt, Mitsuba and Dr.Jit and exit")
 
 
-def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+def build_parser(commands: Iterable[str] | None = None,
+                 summary: bool = False) -> argparse.ArgumentParser:
     """The ``mcrt`` parser with the given subcommands (default: all of :data:`COMMANDS`).
 
-    Imports the module of each subcommand it adds.
+    Imports the module of each subcommand it adds; with ``summary``, adds every
+    subcommand by name and :data:`SUMMARIES` only (enough for ``mcrt --help``,
+    ``--version`` and a mistyped command, without importing any of them).
     """
     parser = _Parser(prog="mcrt", description=DESCRIPTION,
                      epilog="examples:\n" + "\n".join(f"  {e}" for e in EXAMPLES))
@@ -120,6 +134,9 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     subparsers.required = True
     for name in COMMANDS if commands is None else commands:
+        if summary:
+            subparsers.add_parser(name, help=SUMMARIES[name])
+            continue
         module = importlib.import_module(f"{__name__}.{COMMANDS[name]}")
         module.add_parser(subparsers)
         _add_global_options(subparsers.choices[name], after_command=True)
@@ -200,7 +217,10 @@ def main(argv: list[str] | None = None) -> int:
     command = command_of(argv)
     # A parser with just the one subcommand parses its arguments exactly as the
     # full parser would (same prog, usage and messages).
-    args = build_parser(None if command is None else [command]).parse_args(argv)
+    # Without one (--help, --version, a typo, nothing) the subcommands' names and
+    # summaries are all the parser needs.
+    parser = build_parser(summary=True) if command is None else build_parser([command])
+    args = parser.parse_args(argv)
     from ..core.engine import termination_as_interrupt
 
     try:

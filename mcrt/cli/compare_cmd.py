@@ -26,7 +26,7 @@ from ..analysis.study import (
 )
 from ..core.atomic import remedy
 from ..errors import McrtError
-from . import _common
+from . import SUMMARIES, _common
 from ._common import check_output_files, ensure_writable_dir, examples
 
 log = logging.getLogger("mcrt.compare")
@@ -34,7 +34,7 @@ log = logging.getLogger("mcrt.compare")
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = commands.add_parser(
-        "compare", help="run a sampling study and write an HTML/CSV/JSON report",
+        "compare", help=SUMMARIES["compare"],
         description="Run the study described by CONFIG.toml (scenes x samplers x sample counts "
                     "x seeds, see configs/quick.toml): time every render after a warm-up, "
                     "measure MSE, relMSE, variance, bias, CIEDE2000 and aliasing against a "

@@ -15,7 +15,7 @@ from ..core.sampling import check_sampler_name, make_sampler
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
 from ..render.plan import plan_scene
-from . import _common
+from . import SUMMARIES, _common
 from ._common import ensure_writable_dir, examples, positive_int
 
 log = logging.getLogger("mcrt.demo")
@@ -34,7 +34,7 @@ def default_scene_dir() -> Path:
 
 def add_parser(commands) -> None:
     p = commands.add_parser(
-        "demo", help="render the shipped scenes with each sampler and compare",
+        "demo", help=SUMMARIES["demo"],
         description="Renders each shipped scene with each sampler at the scene's default "
                     "sample count, and a high-spp jittered reference; writes EXR/PNG images, a "
                     "contact sheet per scene and results.csv with relMSE and time. The times "

@@ -11,7 +11,7 @@ from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_c
 from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
-from . import _common, _integrate_peers
+from . import SUMMARIES, _common, _integrate_peers
 from ._common import ensure_writable_dir, examples, non_negative_int, positive_int
 
 DEFAULT_SAMPLERS = ("independent", "jittered", "poisson_disk")
@@ -29,7 +29,7 @@ MAX_TRIALS = 1 << 16
 
 def add_parser(commands) -> None:
     p = commands.add_parser(
-        "integrate", help="Monte-Carlo integration bench: error vs N per sampler",
+        "integrate", help=SUMMARIES["integrate"],
         description="Estimates an integral over the unit square with N samples of one pixel, "
                     "for N = MIN, 4 MIN, ..., <= MAX; many pixels are independent trials, "
                     "giving the MSE and its uncertainty. Prints a table and the fitted slope "

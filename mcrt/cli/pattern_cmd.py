@@ -18,7 +18,7 @@ from ..errors import McrtError
 from ..samplers import ALL_SAMPLERS, BUILTIN_SAMPLERS
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets
 from ..samplers.poisson_tables import MAX_POINTS
-from . import _common
+from . import SUMMARIES, _common
 from ._common import ensure_writable_dir, examples, non_negative_int, positive_int
 
 log = logging.getLogger("mcrt.pattern")
@@ -42,7 +42,7 @@ GRID_SAMPLERS = ("uniform_grid", "jittered", "stratified", "multijitter", "ortho
 
 def add_parser(commands) -> None:
     p = commands.add_parser(
-        "pattern", help="analyse a sampler's point sets: spectrum, anisotropy, discrepancy",
+        "pattern", help=SUMMARIES["pattern"],
         description="Draws the points NAME gives the first K pixels of a render (film "
                     "dimension by default, through the same calls Mitsuba makes) and measures "
                     "them: averaged power spectrum P(k) (white noise = 1), radially averaged "

@@ -9,6 +9,7 @@ from ..core.sampling import check_sampler_name, make_sampler
 from ..render.plan import EFFECTS, parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS
+from . import SUMMARIES
 from ._common import examples, non_negative_int, positive_int
 
 
@@ -22,7 +23,7 @@ def add_effect_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = commands.add_parser(
-        "plan", help="show which distribution effects a scene gets and how they are sampled",
+        "plan", help=SUMMARIES["plan"],
         description="Analyse SCENE.xml (camera aperture, emitters, BSDF roughness, moving "
                     "shapes, indirect light) and print the render plan that mcrt render follows: "
                     "effects on/off and why, integrator and depth, camera, shutter and "

@@ -20,7 +20,7 @@ from ..errors import McrtError
 from ..io import write_exr
 from ..render.scene import check_scene_file, parse_defines
 from ..samplers import ALL_SAMPLERS
-from . import _common
+from . import SUMMARIES, _common
 from ._common import (
     check_output_files,
     examples,
@@ -33,7 +33,7 @@ from ._common import (
 
 def add_parser(commands) -> None:
     p = commands.add_parser(
-        "reference", help="render a cached, resumable high-spp reference with error bars",
+        "reference", help=SUMMARIES["reference"],
         description="Render a reference of SCENE.xml in passes of independent seeds, merging "
                     "exact float64 per-pixel statistics, and write OUT.exr with layers rgb "
                     "(mean), variance (per sample), stderr (of the mean), count (samples per "

@@ -34,7 +34,7 @@ from ..render import adaptive
 from ..render.plan import parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS
-from . import _adaptive_args
+from . import SUMMARIES, _adaptive_args
 from ._common import (
     check_output_files,
     checkpoint_interval,
@@ -51,7 +51,7 @@ log = logging.getLogger("mcrt.render")
 
 def add_parser(commands) -> None:
     p = commands.add_parser(
-        "render", help="render a scene with a chosen sampler",
+        "render", help=SUMMARIES["render"],
         description="Render SCENE.xml and write OUT.exr (float32) and OUT.png (sRGB preview; "
                     "linear values above 1 are clipped). Ctrl-C writes the passes finished so "
                     "far (marked partial); the same command then resumes.",

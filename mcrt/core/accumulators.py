@@ -137,6 +137,10 @@ class FilmAccumulator:
         dr.eval(self.sums, self.nonfinite)
         self._pending = None
 
+    def state_bytes(self) -> int:
+        """Size of :meth:`state` (float64 sums and the non-finite counts)."""
+        return self.ext[0] * self.ext[1] * self.channels * 8 + self.grid[0] * self.grid[1] * 8
+
     def state(self) -> dict[str, np.ndarray]:
         w, h = self.ext
         sums = np.stack([np.array(s, dtype=np.float64) for s in self.sums], axis=-1)

@@ -225,6 +225,15 @@ class CheckpointStore:
 CHECKPOINT_BUDGET = 0.01
 
 
+#: Speed assumed for a first checkpoint (bytes per second, compression and fsync included).
+CHECKPOINT_BYTES_PER_SECOND = 100e6
+
+
+def expected_save_seconds(state_bytes: int) -> float:
+    """What saving a checkpoint of ``state_bytes`` is expected to take."""
+    return 0.01 + state_bytes / CHECKPOINT_BYTES_PER_SECOND if state_bytes else 0.0
+
+
 class CheckpointPacer:
     """When to write a checkpoint during a job: as often as keeps their cost
     below :data:`CHECKPOINT_BUDGET` of the time since the last one, or every
@@ -233,10 +242,13 @@ class CheckpointPacer:
     ``maybe(save, make)`` calls ``save(make())`` when one is due and times it.
     """
 
-    def __init__(self, every: float | None = None, budget: float = CHECKPOINT_BUDGET) -> None:
+    def __init__(self, every: float | None = None, budget: float = CHECKPOINT_BUDGET,
+                 state_bytes: int = 0) -> None:
         self.every, self.budget = every, budget
         self.last = time.perf_counter()
-        self.cost = 0.0  # seconds the last checkpoint took
+        # Seconds the last checkpoint took; before the first, what one of
+        # ``state_bytes`` is expected to take (so a short job writes none).
+        self.cost = expected_save_seconds(state_bytes)
         self.spent = 0.0  # seconds all checkpoints took
         self.count = 0
 

@@ -226,7 +226,7 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
                           pixels=width * height, nonfinite=nonfinite,
                           state=lambda: checkpoint(done, seconds), aov_count=len(aovs))
 
-    pacer = CheckpointPacer(save_every)
+    pacer = CheckpointPacer(save_every, state_bytes=accumulator.state_bytes())
     started = run.done
 
     def before_pass(index: int, count: int) -> None:

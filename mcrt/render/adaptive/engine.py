@@ -150,7 +150,8 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                        sampler, ladder, has_alpha, seconds_before + time.perf_counter() - start)
 
     saved = snapshot()
-    pacer = CheckpointPacer(save_every)
+    pacer = CheckpointPacer(save_every,
+                            state_bytes=sum(a.nbytes for a in saved.arrays.values()))
     try:
         while active.size:
             pass_start = time.perf_counter()
