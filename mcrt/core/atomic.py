@@ -21,7 +21,6 @@ import contextlib
 import errno
 import os
 import re
-import secrets
 import shutil
 import tempfile
 import time
@@ -145,7 +144,7 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[str]
 
     tmp = None
     for _ in range(16):
-        candidate = os.path.join(directory, f".{name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+        candidate = os.path.join(directory, f".{name}.{os.getpid()}-{os.urandom(4).hex()}.tmp")
         try:
             # 0o666 & ~umask: the final file gets ordinary permissions (mkstemp's 0o600 would not).
             fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import Field, dataclass, field, fields
-from statistics import NormalDist
 from typing import Any, TypeVar
 
 from ...errors import McrtError
@@ -150,6 +149,8 @@ class AdaptiveSettings:
     @property
     def z(self) -> float:
         """Two-sided normal quantile of :attr:`confidence`."""
+        from statistics import NormalDist  # (imported when first needed)
+
         return NormalDist().inv_cdf(0.5 + 0.5 * self.confidence)
 
 

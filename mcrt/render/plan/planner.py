@@ -17,7 +17,6 @@ import mitsuba as mi
 from ...core.sampling import sampler_name
 from ...errors import SceneError
 from ..motion import SUBFRAME_STEP_PX
-from ..multisample import wrap_integrator
 from ..scene import SceneDescription, read_scene
 from .edits import bake_pose, edit_built, edit_description, name_area_lights, rendered_camera
 from .effects import ScanFacts, SceneFacts, decide_described, decide_measured
@@ -53,6 +52,8 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
     integrator, integrator_reason = choose_integrator(described, author, decisions)
     edit_description(described, decisions, integrator if author.replannable else None)
     if wrap is not None:
+        from ..multisample import wrap_integrator  # only for --multisample
+
         wrap_integrator(desc, wrap)
     facts = SceneFacts.built(described, _instantiate(desc))
     decide_measured(decisions, facts)
