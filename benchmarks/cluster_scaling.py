@@ -4,14 +4,15 @@ process and on ``local:1`` / ``local:2`` clusters, side by side.
 Modes (each timed after a warm-up run that compiles kernels and plans scenes):
 
 * ``here:1`` / ``here:2``: in this process with 1 / 2 Dr.Jit threads;
-* ``local:1`` / ``local:2``: a LocalCluster of 1 / 2 worker processes, one Dr.Jit
-  thread each (cluster start-up is timed separately, not in the runs).
+* ``local:1`` / ``local:2``: a LocalCluster of 1 / 2 worker processes with cores / N
+  Dr.Jit threads each: on 2 cores, one worker with 2 threads / two with 1 (cluster
+  start-up is timed separately, not in the runs).
 
 Rounds are interleaved (every mode once per round), ratios are medians. Prints:
 
-* the **per-task overhead** of the cluster: ``(local:1 - here:1) / tasks`` for
-  the reference (same threads, same tasks: what scheduling, transfers and the
-  client's fold add per task), and the same as a share of the mean task time;
+* the **per-task overhead** of the cluster: ``(local:1 - here:2) / tasks`` (the
+  same threads, the same tasks: what scheduling, transfers and the client's fold
+  add per task), for the reference and the study, and as a share of a task;
 * **throughput** (tasks/s, samples/s) and **speed-up** of ``local:2`` against
   ``here:2`` (goal: within 1.1x) and against ``here:1``;
 * the study's times in each mode.
@@ -55,7 +56,7 @@ def main() -> None:
     parser.add_argument("--res", type=int, default=128, help="reference film size")
     parser.add_argument("--spp", type=int, default=1024, help="reference samples per pixel")
     parser.add_argument("--spp-per-pass", type=int, default=64, help="samples per task")
-    parser.add_argument("--study-res", type=int, default=64)
+    parser.add_argument("--study-res", type=int, default=128)
     parser.add_argument("--quick", action="store_true", help="tiny sizes, one round")
     args = parser.parse_args()
     if args.quick:
@@ -79,8 +80,10 @@ def main() -> None:
     clusters = {"local:1": DaskExecutor.connect("local:1"),
                 "local:2": DaskExecutor.connect("local:2")}
     startup = (time.perf_counter() - start) / 2
-    modes = {"here:1": (None, 1), "here:2": (None, 2),
-             "local:1": (clusters["local:1"], 1), "local:2": (clusters["local:2"], 2)}
+    cores = os.cpu_count() or 1
+    modes = {"here:1": (None, 1), f"here:{cores}": (None, cores),
+             "local:1": (clusters["local:1"], cores), "local:2": (clusters["local:2"], cores)}
+    here = f"here:{cores}"
 
     def reference(mode: str) -> float:
         executor, threads = modes[mode]
@@ -120,21 +123,20 @@ def main() -> None:
     med = {m: statistics.median(v) for m, v in ref_times.items()}
     smed = {m: statistics.median(v) for m, v in study_times.items()}
     samples = args.res * args.res * args.spp
-    task_time = med["here:1"] / tasks
-    overhead = (med["local:1"] - med["here:1"]) / tasks
-    print("\n| mode | reference [s] | tasks/s | M samples/s | study [s] |")
-    print("|---|---:|---:|---:|---:|")
+    study_tasks = config.cells * len(config.seeds)
+    print("\n| mode | reference [s] | tasks/s | M samples/s | study [s] | study tasks/s |")
+    print("|---|---:|---:|---:|---:|---:|")
     for m in modes:
         print(f"| {m} | {med[m]:.2f} | {tasks / med[m]:.1f} | {samples / med[m] / 1e6:.2f} | "
-              f"{smed[m]:.2f} |")
-    print(f"\nper-task overhead (local:1 - here:1, per task): {overhead * 1e3:.1f} ms "
-          f"= {100 * overhead / task_time:.1f}% of a {task_time:.2f} s task "
-          f"(goal: <= 5% of a 1 s task, i.e. <= 50 ms)")
-    print(f"local:2 / here:2: reference {med['local:2'] / med['here:2']:.3f}, study "
-          f"{smed['local:2'] / smed['here:2']:.3f} (goal <= 1.1)")
-    print(f"speed-up local:2 over here:1: reference {med['here:1'] / med['local:2']:.2f}x, "
-          f"study {smed['here:1'] / smed['local:2']:.2f}x")
-
+              f"{smed[m]:.2f} | {study_tasks / smed[m]:.1f} |")
+    for name, times, count in (("reference", med, tasks), ("study", smed, study_tasks)):
+        overhead = (times["local:1"] - times[here]) / count
+        task = times[here] / count
+        print(f"{name}: per-task overhead (local:1 - {here}) {overhead * 1e3:.1f} ms per task "
+              f"= {100 * overhead / task:.1f}% of its {task:.2f} s tasks, "
+              f"{100 * overhead:.1f}% of a 1 s task (goal <= 5%); local:2 / {here} "
+              f"{times['local:2'] / times[here]:.3f} (goal <= 1.1); speed-up of local:2 over "
+              f"here:1 {times['here:1'] / times['local:2']:.2f}x")
 
 if __name__ == "__main__":
     main()

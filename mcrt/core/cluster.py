@@ -81,6 +81,7 @@ class DaskExecutor:
     def __init__(self, client: Client, cluster: LocalCluster | None = None,
                  address: str = "") -> None:
         self.client, self.cluster, self.address = client, cluster, address
+        self._held: dict[str, Any] = {}  # scattered shared inputs, by content
 
     @classmethod
     def connect(cls, address: str) -> DaskExecutor:
@@ -155,14 +156,22 @@ class DaskExecutor:
                     future.cancel()
 
     def _scatter(self, value: Any) -> Any:
-        """A shared input, on every worker once (a scene goes as its files)."""
+        """A shared input, on every worker once (a scene goes as its files, once
+        per content digest). Scattered data stays held until :meth:`close`: a
+        job's next tasks may need it again, and releasing it while another job
+        scatters the same content would lose it under them."""
+        key = value.digest if isinstance(value, SceneSource) and value.digest else None
+        if key is not None and key in self._held:
+            return self._held[key]
         if isinstance(value, SceneSource):
             value = value.bundle()
             log.debug("sending scene %s to the workers", describe(value))
         try:
-            return self.client.scatter(value, broadcast=True, hash=True)
+            future = self.client.scatter(value, broadcast=True, hash=True)
         except _LOST as error:
             raise self._lost(error) from None
+        self._held[key or future.key] = future
+        return future
 
     def _lost(self, error: BaseException) -> McrtError:
         return McrtError(f"lost the Dask cluster at {self.address or 'local'} "
@@ -170,6 +179,7 @@ class DaskExecutor:
                          f"same command again, with or without --cluster, to resume")
 
     def close(self) -> None:
+        self._held.clear()
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()

@@ -220,14 +220,16 @@ class SeedTask:
     cells: tuple[tuple[SamplerSpec, int], ...]  # (sampler, spp) of each cell, in order
     seeds: tuple[int, ...]
     run: str  # the study run: each process warms a cell up once per run
+    aliasing_draws: int
+    correlation: np.ndarray  # the film filter's pixel correlation (aliasing null model)
 
 
 @dataclass
 class SeedRender:
-    """One seed's render, as a task returns it."""
+    """One seed's render and its metrics, as a task returns it (scored where it
+    was rendered: the client only folds)."""
 
-    spp: int
-    seconds: float
+    values: dict[str, Any]  # the per-seed values of the study's cell fields
     rgb: np.ndarray  # (H, W, 3) float32, linear sRGB
 
 
@@ -235,10 +237,12 @@ class SeedRender:
 _warmed: set[tuple[str, str, str, int]] = set()
 
 
-def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle) -> SeedRender:
-    """Seed ``index`` of a cell, rendered as ``mcrt render`` renders it; the
-    first task of a cell in a process first renders an untimed warm-up (kernels
-    compiled and cached), so every timed render is warm."""
+def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
+                reference: np.ndarray) -> SeedRender:
+    """Seed ``index`` of a cell, rendered as ``mcrt render`` renders it and
+    scored against ``reference`` (the mean image); the first task of a cell in
+    a process first renders an untimed warm-up (kernels compiled and cached), so
+    every timed render is warm."""
     from ...core import render  # looked up now: tests wrap render_film
     from ...core.sampling import make_sampler, quiet_sampler_warnings
     from ...render.loaded import planned_scene
@@ -257,8 +261,30 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle) ->
     if cell not in _warmed:
         run(WARMUP_SEED)  # untimed
         _warmed.add(cell)
-    rendered = run(task.seeds[index % len(task.seeds)])
-    return SeedRender(rendered.spp, rendered.seconds, np.asarray(rendered.rgb, np.float32))
+    seed = task.seeds[index % len(task.seeds)]
+    rendered = run(seed)
+    rgb = np.asarray(rendered.rgb, np.float32)
+    return SeedRender(score_seed(rgb, reference, seed, rendered.spp, rendered.seconds,
+                                 task.aliasing_draws, task.correlation), rgb)
+
+
+def score_seed(rgb32: np.ndarray, reference: np.ndarray, seed: int, spp: int, seconds: float,
+               draws: int, correlation: np.ndarray | None) -> dict[str, Any]:
+    """A seed's metrics against the reference mean: NaN/Inf pixels are counted
+    (``nonfinite``) and measured as zero error; ``correlation`` (the film
+    filter's) shapes the aliasing score's null model."""
+    rgb = np.asarray(rgb32, dtype=np.float64)
+    if rgb.shape != reference.shape:
+        raise McrtError(f"render shape {rgb.shape} differs from the reference's "
+                        f"{reference.shape}")
+    bad = np.logical_not(np.all(np.isfinite(rgb), axis=-1))
+    clean = np.where(bad[..., None], reference, rgb) if bad.any() else rgb
+    score = aliasing_score(error_map(clean, reference), null_draws=draws, seed=seed,
+                           correlation=correlation)
+    return {"seed": seed, "spp": int(spp), "seconds": seconds,
+            "mse": mse(clean, reference), "rel_mse": rel_mse(clean, reference),
+            "delta_e": delta_e_2000(clean, reference),
+            "nonfinite": int(bad.sum()), "aliasing": score.as_dict()}
 
 
 def _collect(total: list[Any] | None, result: Any) -> list[Any]:
@@ -399,21 +425,23 @@ class _Run:
 
         start(0)
         task = SeedTask(tuple(sorted(scene.spec.params.items())), cells, tuple(seeds),
-                        self.token)
+                        self.token, self.config.aliasing_draws, scene.pixel_correlation())
         job: Job[SeedRender, list[SeedRender]] = Job(
             f"{name}/cells", len(cells) * k, functools.partial(render_seed, task), _collect,
-            shared={"scene": scene.source()})
+            shared={"scene": scene.source(), "reference": ref.mean})
         run_job(job, self.executor, on_fold=on_fold)
 
     def record(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference,
                rendered: list[SeedRender]) -> None:
         """Score a cell's seeds, summarise the cell and record it (and save it)."""
-        name, seeds, k = scene.spec.name, self.config.seeds, len(self.config.seeds)
+        name, k = scene.spec.name, len(self.config.seeds)
         correlation = scene.pixel_correlation()
-        results = [self.score_seed(name, sampler, spp, seeds[i], ref, r, correlation)
-                   for i, r in enumerate(rendered)]
-        per_seed = [values for values, _ in results]
-        renders = [rgb for _, rgb in results]
+        per_seed = [r.values for r in rendered]
+        for values in per_seed:
+            if values["nonfinite"]:  # counted and reported; metrics see zero error there
+                log.warning("%s/%s/%d spp seed %d: %d pixels are NaN/Inf", name,
+                            sampler.label, spp, values["seed"], values["nonfinite"])
+        renders = [np.asarray(r.rgb, dtype=np.float64) for r in rendered]
         stats = PixelStats.from_images(renders)
         cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
                               ref.floor, k, rfilter=scene.spec.rfilter,
@@ -426,28 +454,3 @@ class _Run:
         self.current = None
         if self.state is not None:
             self.state.add(cell, images, self.seconds(), renders=views)
-
-    def score_seed(self, name: str, sampler: SamplerSpec, spp: int, seed: int,
-                   ref: _Reference, rendered: SeedRender, correlation: np.ndarray | None = None
-                   ) -> tuple[dict[str, Any], np.ndarray]:
-        """A seed's metrics (NaN/Inf pixels counted, logged and measured as zero
-        error); returns the per-seed values and the image. ``correlation``: the
-        film filter's pixel correlation, for the aliasing score's null model."""
-        rgb = np.asarray(rendered.rgb, dtype=np.float64)
-        if rgb.shape != ref.mean.shape:
-            raise McrtError(f"scene {name!r}: render shape {rgb.shape} "
-                            f"differs from the reference's {ref.mean.shape}")
-        bad = np.logical_not(np.all(np.isfinite(rgb), axis=-1))
-        clean = rgb
-        if bad.any():  # counted and reported; metrics see zero error there
-            log.warning("%s/%s/%d spp seed %d: %d pixels are NaN/Inf",
-                        name, sampler.label, spp, seed, int(bad.sum()))
-            clean = np.where(bad[..., None], ref.mean, rgb)
-        score = aliasing_score(error_map(clean, ref.mean),
-                               null_draws=self.config.aliasing_draws, seed=seed,
-                               correlation=correlation)
-        values = {"seed": seed, "spp": int(rendered.spp), "seconds": rendered.seconds,
-                  "mse": mse(clean, ref.mean), "rel_mse": rel_mse(clean, ref.mean),
-                  "delta_e": delta_e_2000(clean, ref.mean),
-                  "nonfinite": int(bad.sum()), "aliasing": score.as_dict()}
-        return values, rgb
