@@ -256,3 +256,59 @@ def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
     resumed = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8)
     assert resumed.resumed_passes >= 2
     _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
+
+
+def test_render_passes_on_a_cluster_write_the_same_exr(tmp_path, cache):
+    """`mcrt render --cluster local:2`: each pass is a task whose sums the client
+    adds in pass order: the same EXR (layers and header) as in one process."""
+    common = [str(CORNELL), "-D", "res=128", "--spp", "256", "--sampler", "sobol"]
+    here = _mcrt("-q", "render", *common, "-o", str(tmp_path / "here"))
+    there = _mcrt("-q", "render", *common, "--cluster", "local:2", "-o", str(tmp_path / "there"))
+    assert here.returncode == 0, here.stderr
+    assert there.returncode == 0, there.stderr
+    assert "passes 4" in there.stdout  # 4 tasks of 2^20 lanes
+    (a, meta_a), (b, meta_b) = read_exr(tmp_path / "here.exr"), read_exr(tmp_path / "there.exr")
+    assert a.keys() == b.keys() and meta_a == meta_b
+    for layer in a:
+        np.testing.assert_array_equal(a[layer], b[layer], err_msg=layer)
+
+
+def test_an_interrupted_cluster_render_resumes_without_the_cluster(tmp_path, cache):
+    """SIGINT to `mcrt render --cluster local:2` once a checkpoint is written
+    (after every pass here); the same command without --cluster resumes from it
+    and writes the image an uninterrupted render writes."""
+    common = [str(CORNELL), "-D", "res=128", "--spp", "1024", "--sampler", "jittered"]
+    env = {**os.environ, "MCRT_CHECKPOINT_SECONDS": "0"}
+    out = tmp_path / "img"
+    process = subprocess.Popen([sys.executable, "-m", "mcrt", "-q", "render", *common,
+                                "--cluster", "local:2", "-o", str(out)], env=env,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    checkpoint = tmp_path / ".img.exr.mcrt-resume.npz"
+    deadline = time.monotonic() + 300
+    while not checkpoint.exists() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=300)
+    assert process.returncode == 130, err
+    assert checkpoint.exists()
+    resumed = _mcrt("-q", "render", *common, "-o", str(out), env=env)
+    assert resumed.returncode == 0, resumed.stderr
+    full = _mcrt("-q", "render", *common, "-o", str(tmp_path / "full"))
+    assert full.returncode == 0, full.stderr
+    a, b = read_exr(out.with_suffix(".exr"))[0], read_exr(tmp_path / "full.exr")[0]
+    for layer in b:
+        np.testing.assert_array_equal(a[layer], b[layer], err_msg=layer)
+
+
+def test_a_sampler_with_random_state_is_refused_on_a_cluster(tmp_path, cache):
+    """Mitsuba's samplers cannot start at pass k: --cluster refuses them in one
+    line before any work; $MCRT_CLUSTER alone renders them here, with a note."""
+    common = [str(CORNELL), "-D", "res=16", "--spp", "4", "--sampler", "independent"]
+    refused = _mcrt("render", *common, "--cluster", "local:2", "-o", str(tmp_path / "a"))
+    lines = refused.stderr.strip().splitlines()
+    assert refused.returncode == 2 and len(lines) == 1, refused.stderr
+    assert "independent carries its random state" in lines[0]
+    assert not (tmp_path / "a.exr").exists()
+    here = _mcrt("render", *common, "-o", str(tmp_path / "b"), env={"MCRT_CLUSTER": "local:2"})
+    assert here.returncode == 0 and (tmp_path / "b.exr").exists(), here.stderr
+    assert "rendering in this process, not on $MCRT_CLUSTER" in here.stderr

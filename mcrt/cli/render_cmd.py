@@ -10,6 +10,7 @@ finished render is kept the same way and the next run only writes it.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import shlex
@@ -20,21 +21,24 @@ from pathlib import Path
 from .. import __version__
 from ..cache import cache_dir
 from ..core.atomic import remedy
+from ..core.executor import cluster_address
 from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
-from ..core.scene_files import scene_digest
+from ..core.scene_files import SceneSource, scene_digest
 from ..core.trace import film_grid_size
 from ..errors import McrtError
 from ..io import write_exr, write_png
 from ..io.heatmap import write_heatmap
 from ..render import adaptive
+from ..render.loaded import FilmPassTask, film_pass, remember_planned
 from ..render.plan import parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
-from ..samplers import ALL_SAMPLERS
-from . import SUMMARIES, _adaptive_args
+from ..samplers import ALL_SAMPLERS, PLUGINS
+from ..samplers.base import is_mcrt_sampler
+from . import SUMMARIES, _adaptive_args, _common
 from ._common import (
     check_output_files,
     checkpoint_interval,
@@ -72,6 +76,7 @@ def add_parser(commands) -> None:
     p.add_argument("-o", "--output", metavar="OUT",
                    help="output path without extension, or a directory to write into "
                         "(default: out/<scene>_<sampler>)")
+    _common.add_cluster_argument(p)
     add_effect_argument(p)  # the render follows the scene's plan (see `mcrt plan`)
     p.add_argument("--multisample", action="store_true",
                    help="multisampling: trace visibility at every sample but shade once per "
@@ -106,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
     check_free_space(exr_path.parent, scene)
     _check_memory(scene, adaptive_settings)
+    cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
     note_first_run()
     metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
     if adaptive_settings is not None:
@@ -127,10 +133,14 @@ def run(args: argparse.Namespace) -> int:
         log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
     log.info("plan: %s", ", ".join(planned.plan.effects_on))
 
+    tasks = _pass_tasks(args, planned, params, overrides, name, sampler, spp) if cluster \
+        else {}
     try:
-        result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
-                             passes=passes, on_pass=on_pass, resume=state,
-                             save=store.save_periodic, save_every=checkpoint_interval())
+        with _common.cluster_executor(cluster) as executor:
+            result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
+                                 passes=passes, on_pass=on_pass, resume=state,
+                                 save=store.save_periodic, save_every=checkpoint_interval(),
+                                 executor=executor, **tasks)
     except Interrupted as stop:
         target = stop.state.meta["settings"][0] if stop.state is not None else spp
 
@@ -158,6 +168,40 @@ def run(args: argparse.Namespace) -> int:
     _print_shading_counts(scene)
     print(f"wrote {exr_path} and {png_path}")
     return 0
+
+
+def _render_cluster(args: argparse.Namespace, sampler, adaptive: bool) -> str | None:
+    """The cluster a render's passes run on (``--cluster``, else ``$MCRT_CLUSTER``),
+    or None. Its passes can be tasks only with mcrt's samplers (counter-based:
+    a worker starts any pass exactly; Mitsuba's carry a random state from pass to
+    pass) and without --adaptive: an error with --cluster, in-process (with a
+    note) when the cluster only comes from the environment."""
+    address = cluster_address(args.cluster)
+    if address is None:
+        return None
+    why = ("--adaptive renders run in one process" if adaptive else
+           None if is_mcrt_sampler(sampler) else
+           f"{sampler_name(sampler)} carries its random state from pass to pass, which a "
+           f"worker cannot recreate; use one of mcrt's samplers "
+           f"({', '.join(PLUGINS)})")
+    if why is None:
+        return address
+    if args.cluster is not None:
+        raise McrtError(f"--cluster: {why}")
+    log.info("rendering in this process, not on $MCRT_CLUSTER: %s", why)
+    return None
+
+
+def _pass_tasks(args: argparse.Namespace, planned, params: dict[str, str],
+                overrides: dict[str, bool], name: str, sampler, spp: int) -> dict:
+    """``render_film``'s arguments that make its passes tasks (``--cluster``)."""
+    wrap = "multisample" if getattr(args, "multisample", False) else None
+    source = SceneSource.of(args.scene, params)
+    remember_planned(source, params, planned, overrides, wrap)  # for in-process tasks too
+    task = FilmPassTask(tuple(sorted(params.items())), tuple(sorted(overrides.items())), wrap,
+                        name, tuple(sorted(sampler_params_of(sampler).items())), spp,
+                        args.seed)
+    return {"pass_task": functools.partial(film_pass, task), "shared": {"scene": source}}
 
 
 def _print_shading_counts(scene) -> None:

@@ -212,9 +212,10 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
                run: PassRun, seed: int, sensor: int = 0,
                on_pass: Callable[[int, int], None] | None = None,
                progress: Progress | None = None,
-               values: Callable[[mi.Film, CameraSamples], list[Any]] = film_values) -> None:
-    """Trace passes ``run.done .. run.shape.passes - 1`` of ``scene`` into
-    ``accumulator``; ``run`` is updated after every committed pass.
+               values: Callable[[mi.Film, CameraSamples], list[Any]] = film_values,
+               stop: int | None = None) -> None:
+    """Trace passes ``run.done .. run.shape.passes - 1`` (or ``stop - 1``) of
+    ``scene`` into ``accumulator``; ``run`` is updated after every committed pass.
 
     ``sampler`` must have the sample count ``run.shape.spp``. Ctrl-C (and
     SIGTERM/SIGHUP) raise ``KeyboardInterrupt`` between passes, with ``run``
@@ -235,7 +236,7 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
     pixel = pixel_of_index(film, pixel_index)
     dr.sync_thread()
     with termination_as_interrupt():
-        for index in range(run.done, shape.passes):
+        for index in range(run.done, shape.passes if stop is None else stop):
             start = time.perf_counter()
             if on_pass is not None:
                 on_pass(index, shape.passes)
@@ -245,7 +246,8 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
                 run.seconds += time.perf_counter() - start
 
             trace_pass(scene, sensor_obj, integrator, sampler, pixel, shape.spp, accumulator,
-                       shape.group, values, committed, advance=index + 1 < shape.passes)
+                       shape.group, values, committed,
+                       advance=index + 1 < (shape.passes if stop is None else stop))
             if progress is not None:
                 progress.update(1)
 

@@ -25,9 +25,18 @@ import numpy as np
 
 from ..errors import McrtError
 from .accumulators import FilmAccumulator, MomentsAccumulator, release_cached_memory
-from .engine import Accumulator, PassRun, fitted_shape, grid_pixels, run_passes, sampling_integrator
+from .engine import (
+    Accumulator,
+    PassRun,
+    fitted_shape,
+    grid_pixels,
+    pass_shape,
+    run_passes,
+    sampling_integrator,
+)
+from .executor import cluster_status
 from .filtered import FilteredMomentsAccumulator, FilteredStats
-from .job import Checkpoint, CheckpointPacer, Interrupted
+from .job import Checkpoint, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .progress import Progress
 from .stats import PixelStats
@@ -177,7 +186,8 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
                 on_pass: Callable[[int, int], None] | None = None,
                 resume: Checkpoint | None = None,
                 save: Callable[[Checkpoint], object] | None = None,
-                save_every: float | None = None) -> FilmRender:
+                save_every: float | None = None, pass_task: Callable[..., Any] | None = None,
+                shared: dict[str, Any] | None = None, executor: Any = None) -> FilmRender:
     """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
 
     Returns the developed film (bit-identical across runs and thread counts),
@@ -192,6 +202,12 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     SIGKILL keeps them: every ``save_every`` seconds (0: after every pass), by
     default as often as keeps its cost under 2% of the render time
     (:class:`~mcrt.core.job.CheckpointPacer`).
+
+    With ``pass_task`` (``pass_task(index, passes=count, **shared)`` returns the
+    sums of pass ``index`` of ``count`` alone, as :func:`render_film_pass` makes
+    them, wherever it runs),
+    the passes are the tasks of a job run by ``executor`` (a Dask cluster, say)
+    and their sums are added here in pass order: the same bits as in-process.
     """
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
@@ -236,13 +252,78 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
             on_pass(index, count)
 
     try:
-        _run(scene, sampler, accumulator, run, seed, sensor, progress,
-             before_pass if save is not None else on_pass)
+        if pass_task is None:
+            _run(scene, sampler, accumulator, run, seed, sensor, progress,
+                 before_pass if save is not None else on_pass)
+        else:
+            task = functools.partial(pass_task, passes=run.shape.passes)
+            _run_tasks(run, accumulator, Job("film", run.shape.passes, task, _add_sums,
+                                             shared=dict(shared or {})),
+                       executor, progress, pacer if save is not None else None,
+                       lambda state: save(Checkpoint(  # type: ignore[misc]
+                           {"settings": [spp, run.shape.passes, seed], "done": run.done,
+                            "seconds": run.seconds}, state)))
     except KeyboardInterrupt:
         partial = result()
         raise Interrupted(partial if run.done else None, run.done, run.shape.passes,
                           state=partial.checkpoint) from None
     return result()
+
+
+def render_film_pass(scene: mi.Scene, sampler: mi.Sampler, index: int, passes: int,
+                     seed: int = 0, sensor: int = 0,
+                     on_pass: Callable[[int, int], None] | None = None
+                     ) -> dict[str, np.ndarray]:
+    """The film sums of pass ``index`` alone (of ``passes``) of the render
+    :func:`render_film` makes with the same arguments: what a task of a
+    distributed render returns. The sampler continues exactly to that pass
+    (mcrt's samplers are counter-based; Mitsuba's cannot, see
+    :func:`~mcrt.core.engine.resume_seed`)."""
+    film, sampler, spp = _prepare(scene, sampler, None, sensor)
+    channels = film.create_block().channel_count()
+    width, height = grid_pixels(film)
+    run = PassRun(pass_shape(width * height, spp, passes=passes), done=index)
+    accumulator = FilmAccumulator(film, channels)
+    run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
+               stop=index + 1)
+    return accumulator.state()
+
+
+def _add_sums(total: dict[str, np.ndarray] | None,
+              part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Fold of pass sums in pass order: float64 adds, as the device adds them."""
+    if total is None:
+        return {name: value.copy() for name, value in part.items()}
+    return {name: total[name] + part[name] for name in total}
+
+
+def _run_tasks(run: PassRun, accumulator: FilmAccumulator, job: Job, executor: Any,
+               progress: bool, pacer: CheckpointPacer | None,
+               save: Callable[[dict[str, np.ndarray]], object]) -> None:
+    """Run the passes ``run.done ..`` as the tasks of ``job`` and fold their sums
+    into ``accumulator`` (also when interrupted: the folded passes are kept)."""
+    shape = run.shape
+    bar = Progress(shape.passes, enabled=progress and shape.passes > 1, initial=run.done)
+    start, before = time.perf_counter(), run.seconds
+
+    def on_fold(count: int, total: dict[str, np.ndarray]) -> None:
+        run.done, run.seconds = count, before + time.perf_counter() - start
+        bar.postfix(cluster_status(executor).strip(", "))
+        bar.update(1)
+        if pacer is not None:
+            pacer.maybe(save, lambda: total)
+
+    try:
+        total = run_job(job, executor, done=run.done, total=accumulator.state(),
+                        on_fold=on_fold)
+    except Interrupted as stop:
+        if stop.partial is not None:
+            accumulator.restore(stop.partial)
+        raise KeyboardInterrupt from None
+    finally:
+        bar.close()
+    if total is not None:
+        accumulator.restore(total)
 
 
 def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, seed: int = 0,

@@ -6,29 +6,37 @@ cluster worker); :func:`planned_scene` plans it (:func:`~mcrt.render.plan.plan_s
 the first time and returns the same :class:`~mcrt.render.plan.PlannedScene` to
 the job's later tasks, keyed by the scene's content digest and parameters (a
 changed file is a new scene). The few most recent scenes are kept.
+
+:func:`film_pass` is a pass of ``mcrt render`` as such a task (``--cluster``).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import numpy as np
+
+from ..core.render import render_film_pass
+from ..core.sampling import make_sampler
 from ..core.scene_files import SceneBundle, SceneSource, local_scene
 from .plan import PlannedScene, plan_scene
 
 #: Scenes kept per process (a study renders its scenes one after the other).
 KEPT = 4
 
-_planned: OrderedDict[tuple[str, str, tuple[tuple[str, str], ...]], PlannedScene] = \
-    OrderedDict()
+_planned: OrderedDict[tuple, PlannedScene] = OrderedDict()
 
 
-def _key(path: str | Path, digest: str, params: dict[str, str] | None
-         ) -> tuple[str, str, tuple[tuple[str, str], ...]]:
-    return digest, str(path), tuple(sorted((params or {}).items()))
+def _key(path: str | Path, digest: str, params: dict[str, str] | None,
+         overrides: dict[str, bool] | None = None, wrap: str | None = None) -> tuple:
+    return (digest, str(path), tuple(sorted((params or {}).items())),
+            tuple(sorted((overrides or {}).items())), wrap)
 
 
-def _keep(key: tuple[str, str, tuple[tuple[str, str], ...]], planned: PlannedScene) -> None:
+def _keep(key: tuple, planned: PlannedScene) -> None:
     _planned[key] = planned
     _planned.move_to_end(key)
     while len(_planned) > KEPT:
@@ -36,18 +44,47 @@ def _keep(key: tuple[str, str, tuple[tuple[str, str], ...]], planned: PlannedSce
 
 
 def remember_planned(source: SceneSource, params: dict[str, str] | None,
-                     planned: PlannedScene) -> None:
+                     planned: PlannedScene, overrides: dict[str, bool] | None = None,
+                     wrap: str | None = None) -> None:
     """Keep a scene planned by the caller for this process's tasks."""
-    _keep(_key(source.path, source.digest, params), planned)
+    _keep(_key(source.path, source.digest, params, overrides, wrap), planned)
 
 
-def planned_scene(scene: SceneSource | SceneBundle,
-                  params: dict[str, str] | None = None) -> PlannedScene:
-    """The scene planned as ``mcrt render`` plans it, loaded once per process."""
+def planned_scene(scene: SceneSource | SceneBundle, params: dict[str, str] | None = None,
+                  overrides: dict[str, bool] | None = None,
+                  wrap: str | None = None) -> PlannedScene:
+    """The scene planned as ``mcrt render`` plans it (with its ``--effect``
+    overrides and integrator ``wrap``), loaded once per process."""
     path, digest = local_scene(scene)
-    key = _key(path, digest, params)
+    key = _key(path, digest, params, overrides, wrap)
     planned = _planned.get(key)
     if planned is None:
-        planned = plan_scene(path, dict(params or {}))
+        planned = plan_scene(path, dict(params or {}), dict(overrides or {}), wrap=wrap)
     _keep(key, planned)
     return planned
+
+
+@dataclass(frozen=True)
+class FilmPassTask:
+    """What every pass of an ``mcrt render`` needs besides its scene and index,
+    for :func:`film_pass` (``mcrt render --cluster``)."""
+
+    params: tuple[tuple[str, str], ...]
+    overrides: tuple[tuple[str, bool], ...]
+    wrap: str | None
+    sampler: str
+    sampler_params: tuple[tuple[str, Any], ...]
+    spp: int
+    seed: int
+
+
+def film_pass(task: FilmPassTask, index: int, *, passes: int,
+              scene: SceneSource | SceneBundle) -> dict[str, np.ndarray]:
+    """The film sums of pass ``index`` (of ``passes``) of the render, alone, as
+    :func:`~mcrt.core.render.render_film_pass` makes them, with the scene planned
+    as ``mcrt render`` plans it (its motion sub-frames too)."""
+    planned = planned_scene(scene, dict(task.params), dict(task.overrides), task.wrap)
+    sampler = make_sampler(task.sampler, task.spp, **dict(task.sampler_params))
+    _, on_pass = planned.schedule(sampler, task.spp, task.seed)
+    return render_film_pass(planned.scene, sampler, index, passes, seed=task.seed,
+                            on_pass=on_pass)
