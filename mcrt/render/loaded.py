@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..core.render import render_film_pass
-from ..core.sampling import make_sampler
+from ..core.sampling import make_sampler, quiet_sampler_warnings
 from ..core.scene_files import SceneBundle, SceneSource, local_scene
 from .plan import PlannedScene, plan_scene
 
@@ -84,7 +84,8 @@ def film_pass(task: FilmPassTask, index: int, *, passes: int,
     :func:`~mcrt.core.render.render_film_pass` makes them, with the scene planned
     as ``mcrt render`` plans it (its motion sub-frames too)."""
     planned = planned_scene(scene, dict(task.params), dict(task.overrides), task.wrap)
-    sampler = make_sampler(task.sampler, task.spp, **dict(task.sampler_params))
+    with quiet_sampler_warnings():  # (the client has said it once)
+        sampler = make_sampler(task.sampler, task.spp, **dict(task.sampler_params))
     _, on_pass = planned.schedule(sampler, task.spp, task.seed)
     return render_film_pass(planned.scene, sampler, index, passes, seed=task.seed,
                             on_pass=on_pass)
