@@ -191,6 +191,10 @@ class McrtSampler(mi.Sampler):
         self._key = self._seed_key(seed)
         self._set_lanes(pixel, sample, self.sample_count() if stride is None else int(stride))
 
+    def set_film_width(self, width: object) -> None:
+        """The width of the pixel grid about to be rendered: ignored by samplers
+        whose pixels are independent (``zsobol`` orders pixels along the film)."""
+
     def skip_dimensions(self, count: int) -> None:
         """Advance the dimension index by ``count`` without drawing samples."""
         self._dim = self._dim + count

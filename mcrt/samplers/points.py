@@ -32,6 +32,8 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
     ``dimension`` counts sampler calls as Mitsuba does (0 = film position, each
     ``next_1d``/``next_2d`` call is one dimension). Returns an array of shape
     ``(len(pixels), spp, ndim)`` (``spp`` after the sampler's rounding), float32.
+    A sampler that orders pixels along a film (``zsobol``) and has no ``width``
+    takes the pixel indices as one row of ``max(pixels) + 1`` pixels.
 
     Example::
 
@@ -55,6 +57,8 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
     spp = instance.sample_count()
 
     if is_mcrt_sampler(instance):
+        if getattr(instance, "width", None) == 0:  # zsobol without a film: pixels in one row
+            instance.set_film_width(int(pixel_ids.max()) + 1)
         pixel = mi.UInt32(np.repeat(pixel_ids, spp).astype(np.uint32))
         sample = mi.UInt32(np.tile(np.arange(spp, dtype=np.uint32), pixel_ids.size))
         instance.seed_lanes(seed, pixel, sample)

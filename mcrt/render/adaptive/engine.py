@@ -116,11 +116,8 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
     film = sensor_obj.film()
     sampler = (sampler if sampler is not None else sensor_obj.sampler()).clone()
-    ladder = batch_ladder(sampler, settings.min_spp, settings.max_spp)
+    ladder = _ladder(sampler, settings)
     first = ladder[0]
-    if first != settings.min_spp:
-        log.info("adaptive: %s draws %d samples per pixel in its first pass (min_spp %d)",
-                 _sampler_label(sampler), first, settings.min_spp)
     ours = is_mcrt_sampler(sampler)
     has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
 
@@ -166,8 +163,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                                                   ids, m, k, wave_seed, ours, first, s,
                                                   acc, on_samples)
                     lanes += ids.size * m
-            if int(acc.traced.sum()) <= spent:  # budgets only grow: the loop terminates
-                raise McrtError("adaptive: a pass spent no samples; this is a bug")
+            _check_progress(acc, spent)
             leader += int(sizes.max())
             failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
                                                      (height, width))
@@ -183,15 +179,40 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
             active = active_next
             k += 1
             saved = snapshot()
-            if save is not None and not active.size:  # kept until the caller wrote it
-                save(saved)
-            elif save is not None:
-                pacer.maybe(save, lambda: saved)
+            _save(save, pacer, saved, last=not active.size)
     except KeyboardInterrupt:
         done = int(saved.meta["next_pass"])
         raise Interrupted(finish(saved) if done > 0 else None, done, done + 1,
                           state=saved) from None
     return finish()
+
+
+def _ladder(sampler: mi.Sampler, settings: AdaptiveSettings) -> tuple[int, ...]:
+    """The sampler's batch sizes from ``min_spp`` to ``max_spp`` (noted when the
+    first is not ``min_spp``: the sampler rounds it)."""
+    ladder = batch_ladder(sampler, settings.min_spp, settings.max_spp)
+    if ladder[0] != settings.min_spp:
+        log.info("adaptive: %s draws %d samples per pixel in its first pass (min_spp %d)",
+                 _sampler_label(sampler), ladder[0], settings.min_spp)
+    return ladder
+
+
+def _check_progress(acc: _Accumulator, spent: int) -> None:
+    """Every pass spends samples (budgets only grow: the loop terminates)."""
+    if int(acc.traced.sum()) <= spent:
+        raise McrtError("adaptive: a pass spent no samples; this is a bug")
+
+
+def _save(save: Callable[[Checkpoint], object] | None, pacer: CheckpointPacer,
+          saved: Checkpoint, last: bool) -> None:
+    """Checkpoint while the render runs: paced, and always after the last pass
+    (kept until the caller has written the result)."""
+    if save is None:
+        return
+    if last:
+        save(saved)
+    else:
+        pacer.maybe(save, lambda: saved)
 
 
 def _integrator_and_settings(
