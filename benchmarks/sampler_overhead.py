@@ -28,6 +28,8 @@ PAIRS = (
     ({"type": "jittered"}, {"type": "stratified", "jitter": True}),
     ({"type": "uniform_grid"}, {"type": "stratified", "jitter": False}),
     ({"type": "poisson_disk"}, {"type": "independent"}),
+    ({"type": "sobol"}, {"type": "independent"}),
+    ({"type": "zsobol"}, {"type": "independent"}),
 )
 
 
@@ -36,6 +38,8 @@ def cornell(sampler: dict, size: int, spp: int) -> mi.Scene:
     scene["sensor"]["film"]["width"] = size
     scene["sensor"]["film"]["height"] = size
     scene["sensor"]["sampler"] = {**sampler, "sample_count": spp}
+    if sampler["type"] == "zsobol":  # plain Mitsuba: the film width is the scene's to give
+        scene["sensor"]["sampler"]["width"] = size
     scene["integrator"] = {"type": "path", "max_depth": 8}
     return mi.load_dict(scene)
 
