@@ -18,9 +18,16 @@ from mcrt.samplers.points import point_sets
 
 GRID_SAMPLERS = ("uniform_grid", "jittered")
 
+#: Every mcrt sampler plugin: the contract below holds for each.
+CONTRACT = (*OUR_SAMPLERS, "sobol", "zsobol")
+
+#: Parameters a plugin needs outside a render (zsobol: the film width, which mcrt
+#: fills in when it renders).
+NEEDS = {"zsobol": {"width": 8}}
+
 
 def load(name: str, spp: int, **params) -> mi.Sampler:
-    return mi.load_dict({"type": name, "sample_count": spp, **params})
+    return mi.load_dict({"type": name, "sample_count": spp, **NEEDS.get(name, {}), **params})
 
 
 def seeded(name: str, spp: int, lanes: int | None = None, seed: int = 0, **params):
@@ -43,7 +50,7 @@ def test_names_are_free_in_mitsuba():
     code = (
         "import mitsuba as mi\n"
         "mi.set_variant('llvm_ad_rgb')\n"
-        f"for name in {OUR_SAMPLERS!r}:\n"
+        f"for name in {CONTRACT!r}:\n"
         "    try:\n"
         "        mi.load_dict({'type': name})\n"
         "    except RuntimeError as e:\n"
@@ -63,14 +70,15 @@ def test_loads_from_dict_and_xml(name):
     assert isinstance(sampler, mi.Sampler) and sampler.sample_count() == 16
 
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_renders_in_mi_render_from_an_xml_scene(name):
+    width = '<integer name="width" value="16"/>' if name == "zsobol" else ""  # plain Mitsuba
     xml = f"""<scene version="3.0.0">
         <integrator type="direct"/>
         <sensor type="perspective">
             <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
             <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
-            <sampler type="{name}"><integer name="sample_count" value="4"/></sampler>
+            <sampler type="{name}"><integer name="sample_count" value="4"/>{width}</sampler>
         </sensor>
         <shape type="sphere"><bsdf type="diffuse"/></shape>
         <emitter type="constant"/>
@@ -207,7 +215,7 @@ def test_stratum_border_cases_stay_inside():
 
 # -- decorrelation -------------------------------------------------------------
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_dimensions_and_pixels_are_decorrelated(name):
     """Padding: the sample->stratum assignment differs between dimension pairs
     and between pixels; correlation between dimensions is near zero."""
@@ -271,7 +279,7 @@ def test_permutation_pairs_and_dimension_relations_look_random():
 
 # -- determinism, seeding, clone/fork -------------------------------------------
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_same_seed_same_bits_other_seed_other_values(name):
     a = point_sets(name, range(4), 16, seed=5)
     b = point_sets(name, range(4), 16, seed=5)
@@ -288,7 +296,7 @@ def test_base_seed_parameter_changes_the_pattern(name):
     assert np.array_equal(point_sets(name, range(2), 16), point_sets(s0, range(2), 16))
 
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_clone_reproduces_and_fork_is_fresh(name):
     sampler = load(name, 1024, jitter=0.5) if name == "jittered" else load(name, 1024)
     sampler.set_samples_per_wavefront(64)
@@ -310,7 +318,7 @@ def test_clone_reproduces_and_fork_is_fresh(name):
         fresh.next_1d()
 
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_reseeding_does_not_recompile_or_touch_the_seed(name):
     sampler = load(name, 64)
     hashes = []
@@ -346,7 +354,7 @@ def test_values_are_in_the_unit_interval(name):
 
 # -- layout and passes ------------------------------------------------------------
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_pixel_major_layout_matches_point_sets(name):
     """Lane i is pixel i // spp, sample i % spp: the wavefront's points of pixel
     p are exactly point_sets(pixels=[p]) (the analysis layer's code path)."""
@@ -356,7 +364,8 @@ def test_pixel_major_layout_matches_point_sets(name):
     sampler.next_1d()
     wave = arr2(sampler.next_2d()).reshape(pixels, spp, 2).astype(np.float32)
     chosen = [0, 7, 39]
-    np.testing.assert_array_equal(wave[chosen], point_sets(name, chosen, spp, dimension=1, seed=2))
+    np.testing.assert_array_equal(wave[chosen], point_sets(name, chosen, spp, dimension=1, seed=2,
+                                                           **NEEDS.get(name, {})))
 
 
 @pytest.mark.parametrize("name", OUR_SAMPLERS)
@@ -395,7 +404,7 @@ def test_advance_continues_the_pattern_across_passes(name):
     assert not (set(map(tuple, xy.tolist())) & set(map(tuple, wxy.tolist())))
 
 
-@pytest.mark.parametrize("name", OUR_SAMPLERS)
+@pytest.mark.parametrize("name", CONTRACT)
 def test_multi_pass_render_equals_single_pass(name):
     """Our pass renderer in 4 passes gives the one-pass image (the same samples;
     only float32 summation order differs), which equals mi.render's."""
