@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from mcrt.analysis import study
 from mcrt.analysis.pass_plan import plan_passes
-from mcrt.analysis.reference import load_state, save_state
+from mcrt.analysis.reference_cache import load_state, save_state
 from mcrt.analysis.study.summary import CellImages, CellRenders
 from mcrt.core import atomic
 from mcrt.core.job import Checkpoint, CheckpointPacer, CheckpointStore

@@ -17,17 +17,15 @@ import mcrt.analysis.pass_plan as pass_plan
 import mcrt.analysis.reference as reference
 from mcrt.analysis.reference import (
     PassPlan,
-    cache_paths,
     get_reference,
-    load_state,
     pass_seed,
     plan_passes,
     reference_key,
     reference_layers,
     reference_metadata,
-    save_state,
     scene_digest,
 )
+from mcrt.analysis.reference_cache import cache_paths, load_state, save_state
 from mcrt.cli import main
 from mcrt.core.sampling import make_sampler
 from mcrt.core.stats import PixelStats

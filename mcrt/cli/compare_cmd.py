@@ -119,7 +119,7 @@ def _check_space(config, out: Path) -> None:
     """Room for the report (plots, tables, per-scene image sheets), the resume
     state's images (three float32 arrays per scene and sampler) and the
     references' cache files, before any cell is measured."""
-    from ..analysis.reference import STATE_BYTES_PER_PIXEL, cache_paths
+    from ..analysis.reference_cache import STATE_BYTES_PER_PIXEL, cache_paths
     from ..core.atomic import check_free_space
     from ..core.trace import film_grid_size
     from ..render.plan import plan_scene

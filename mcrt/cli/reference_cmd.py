@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
 def _kept(ref) -> str:
     """Where the finished reference is kept when its EXR cannot be written (with
     ``--no-cache`` it is saved to the cache now, so the work is not lost)."""
-    from ..analysis.reference import cache_paths, save_state
+    from ..analysis.reference_cache import cache_paths, save_state
 
     finished = cache_paths(ref.key)[0]
     if not finished.is_file():

@@ -1,0 +1,125 @@
+"""A reference's cache files: its running state, saved after every merged pass.
+
+``<cache>/reference/<key>.partial.npz`` while it renders, ``<key>.npz`` once
+finished (the one :class:`~mcrt.core.job.Checkpoint` format: key and checksum).
+:func:`load_state` uses a file only if it is an intact state of that key, in the
+expected role, with every pixel holding exactly the samples of its passes;
+anything else is set aside with a note and recomputed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cache import cache_dir
+from ..core.filtered import SUMS, FilteredStats
+from ..core.job import Checkpoint, set_aside
+from ..core.render import StatsRender
+from ..core.stats import PixelStats
+from ..errors import McrtError
+from .pass_plan import PassPlan
+
+log = logging.getLogger("mcrt.reference")
+
+#: Version of the cache files' layout and of the rendering recipe; bump it when
+#: either changes so that stale references are never reused.
+CACHE_FORMAT = 1
+
+#: Cache subdirectory.
+CACHE_NAME = "reference"
+
+#: Bytes per pixel of a saved reference state (count, mean, M2, nonfinite).
+STATE_BYTES_PER_PIXEL = 8 + 24 + 24 + 8
+
+
+def cache_paths(key: str) -> tuple[Path, Path]:
+    """``(finished, partial)`` cache files of ``key``."""
+    directory = cache_dir(CACHE_NAME)
+    return directory / f"{key}.npz", directory / f"{key}.partial.npz"
+
+
+def save_state(path: Path, key: str, stats: PixelStats | FilteredStats, passes_done: int,
+               passes: int, seconds: float, complete: bool) -> None:
+    """Write a reference's running state to ``path`` (a :class:`Checkpoint`)."""
+    if isinstance(stats, FilteredStats):
+        arrays = stats.arrays()
+    else:
+        arrays = {"count": np.asarray(stats.count, np.int64),
+                  "mean": np.asarray(stats.mean, np.float64),
+                  "m2": np.asarray(stats.m2, np.float64),
+                  "nonfinite": np.asarray(stats.nonfinite, np.int64)}
+    Checkpoint({"complete": bool(complete), "passes_done": int(passes_done),
+                "passes": int(passes), "seconds": float(seconds)}, arrays).save(path, key)
+
+
+def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
+               complete: bool, filtered: bool = False
+               ) -> tuple[PixelStats | FilteredStats, int, float] | None:
+    """Read a state written by :func:`save_state`; ``(stats, passes_done, seconds)``
+    if it is an intact state of ``key`` in the expected role, else None.
+
+    Besides the checkpoint's own checks (key, checksum), checked: the role
+    (``complete`` and passes done, so a partial state is never returned as
+    finished), array shapes and dtypes, and that every pixel holds exactly the
+    samples of the passes done.
+    """
+    found = Checkpoint.load(path, key)
+    if found is None:
+        return None
+    meta, arrays = found.meta, found.arrays
+    if meta.get("complete") is not complete:
+        return None  # an intact state in the other role (partial vs finished)
+    done: Any = meta.get("passes_done")
+    h, w = shape
+    expected = {"count": ((h, w), np.int64), "nonfinite": ((h, w), np.int64),
+                "mean": ((h, w, 3), np.float64), "m2": ((h, w, 3), np.float64)}
+    if filtered:
+        expected = {"count": ((h, w), np.int64), "nonfinite": ((h, w), np.int64),
+                    **{f"sum_{k}": ((h, w, c), np.float64) for k, c in SUMS}}
+    ok = (meta.get("passes") == plan.passes and isinstance(done, int)
+          and (done == plan.passes if complete else 0 < done < plan.passes)
+          and all(name in arrays and arrays[name].shape == shape_
+                  and arrays[name].dtype == dtype for name, (shape_, dtype) in expected.items()))
+    if ok:
+        moments = ["sum_w", "sum_w2"] if filtered else ["m2"]
+        ok = bool(np.all(arrays["count"] + arrays["nonfinite"] == plan.spp_before(done))
+                  and all(np.all(arrays[m] >= 0) for m in moments)
+                  and all(np.isfinite(arrays[m]).all() for m in expected))
+    if not ok:
+        set_aside(path, "not a consistent state of this reference")
+        return None
+    stats: PixelStats | FilteredStats
+    if filtered:
+        stats = FilteredStats.from_arrays(arrays)
+    else:
+        stats = PixelStats(**{name: arrays[name] for name in expected})
+    return stats, done, float(meta.get("seconds", 0.0))
+
+
+class StateSaver:
+    """Saves a reference's state after every merged pass (partial, then finished);
+    a write failure is noted once and turns saving off, the reference goes on."""
+
+    def __init__(self, key: str, plan: PassPlan, finished: Path, partial: Path,
+                 seconds_before: float, enabled: bool) -> None:
+        self.key, self.plan, self.finished, self.partial = key, plan, finished, partial
+        self.seconds_before, self.enabled = seconds_before, enabled
+
+    def save(self, count: int, merged: StatsRender) -> None:
+        if not self.enabled:
+            return
+        last = count == self.plan.passes
+        try:
+            save_state(self.finished if last else self.partial, self.key, merged.stats, count,
+                       self.plan.passes, self.seconds_before + merged.seconds, complete=last)
+            if last:
+                with contextlib.suppress(OSError):
+                    self.partial.unlink()
+        except (McrtError, OSError) as error:
+            log.warning("cannot write the reference cache (%s); continuing without it", error)
+            self.enabled = False
