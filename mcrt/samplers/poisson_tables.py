@@ -22,19 +22,25 @@ the unit torus, i.e. the unit square with opposite edges identified) of at least
 minimum distance).
 The sampler promises :data:`RHO_GUARANTEE` = 0.75; the margin absorbs its
 float32 symmetries and shifts (~1e-7). Saturated (maximal) dart throwing reaches
-``rho = d_min / d_hex ~ 0.78`` [RSA]_, so 0.76 is "as good as maximal dart
-throwing" while the sets stay dart-throwing-like: no relaxation towards a
-lattice, whose spectrum has strong peaks. The averaged power spectrum is
-~0.06 near ``k = 0``, below 0.1 up to ``|k| = 0.5 sqrt(n)``, peaks at ~1.7
-around ``|k| ~ 1.15 sqrt(n)`` and then oscillates around 1 (measured at
-``n = 256``). Every set is verified with the exact :func:`toroidal_min_distances`
-and regenerated if it falls short; tables read from disk are validated too.
+``rho = d_min / d_hex ~ 0.78`` [RSA]_, but leaves a low-frequency floor in the
+spectrum (~0.075 near ``k = 0`` at every ``n``: a random packing's density
+fluctuates on every scale), so Poisson-disk sets gained only a constant factor
+over random points (error slope -1.13 on an edge against jittering's -1.5). The
+sets are therefore relaxed after dart throwing (a few particle-mesh and
+Gaussian-blue-noise steps with a hard core, :mod:`mcrt.samplers._poisson_relax`):
+the averaged power spectrum is ~0.003 for ``f = |k| d < 0.5`` (``mcrt
+pattern``'s low-frequency power), peaks at ~2.1-2.8 around ``|k| ~ 1.06
+sqrt(n)`` and then oscillates around 1, and ``rho`` stays >= 0.765.
+The descent stops early, before the sets drift towards a lattice (whose spectrum
+has sharp peaks). Every set is verified with the exact
+:func:`toroidal_min_distances` and regenerated if it falls short; tables read
+from disk are validated too.
 Sets of one point have no minimum distance (the requirement is void).
 
 Algorithm
 =========
 
-Maximal Poisson-disk sampling by dart throwing at the fixed radius
+First, maximal Poisson-disk sampling by dart throwing at the fixed radius
 ``r = RHO_TARGET * d_hex(n)``, stopped at ``n`` points, with the cell and
 sub-cell bookkeeping of Ebeida et al. [EMP11]_ and the grid-parallel darts of
 Wei [Wei08]_, run with numpy on many sets at once:
@@ -68,27 +74,30 @@ Wei [Wei08]_, run with numpy on many sets at once:
    remaining gaps are scattered at random. Sets that saturate with fewer than
    ``n`` points (10-23% of the sets for ``n < 40``, ~1% at ``n = 256``, none seen
    beyond) are regenerated; small ``n`` throws a few extra sets up front instead.
+5. The complete sets are relaxed (see above; the relaxation's hard core is
+   ``0.765 d_hex``) and rounded to float32; the exact check follows.
 
 The work is linear in the number of points: every round and split handles flat
 blocks of (25 neighbour offsets x active squares), and the number of rounds is
-fixed. Distances are computed in float32 against ``r + 1e-6`` (far more than
-float32 rounding), so the float32 coordinates of every set satisfy the bound in
-exact arithmetic; :func:`generate` checks it in float64 and returns these
-float32-representable values, and the float32 tables store them without
-rounding. Points are listed in acceptance order, so a prefix of a set is itself
-well spread. Compared with ``scipy.stats.qmc.PoissonDisk`` (Bridson's algorithm
-[Bri07]_, one Python loop iteration per candidate, not toroidal, not maximal)
-this is one to two orders of magnitude faster, see ``BENCHMARKS.md``.
+fixed (per 16,384 points on a 2-core machine: dart throwing ~0.1 s, the
+relaxation ~0.5 s). :func:`generate` checks the spacing of the float32-rounded sets
+in float64 and returns these float32-representable values, and the float32
+tables store them without rounding. Points are listed in acceptance order, so a
+prefix of a set is itself well spread. Compared with
+``scipy.stats.qmc.PoissonDisk`` (Bridson's algorithm [Bri07]_, one Python loop
+iteration per candidate, not toroidal, not maximal) the dart throwing is one to
+two orders of magnitude faster, see ``BENCHMARKS.md``.
 
 Determinism and caching
 =======================
 
 ``generate(n, n_sets, seed)`` draws everything from
 ``np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, n])))``
-and uses only element-wise IEEE arithmetic, so the same arguments give the same
-bits on every run and machine (for a given numpy random stream; numpy keeps
-``Generator`` streams stable in practice but does not promise it across
-versions, which is harmless: a cached table stays valid). :func:`load_tables`
+and uses only correctly rounded arithmetic, fixed-order sums and numpy's own
+FFT, so the same arguments give the same bits on every run and machine for a
+given numpy (numpy keeps ``Generator`` streams and its FFT stable in practice
+but does not promise it across versions, which is harmless: a cached table
+stays valid; workers of one cluster should run one numpy). :func:`load_tables`
 uses ``seed = TABLE_SEED`` and caches the float32 tables in memory and in
 ``<cache>/poisson/v{VERSION}-n{n}-t{T}.npz`` (a :class:`mcrt.core.job.Checkpoint`:
 the table's key and a checksum of its content), where ``<cache>`` is
@@ -122,7 +131,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._poisson_darts import BLOCK, generate_batch
+from ._poisson_darts import generate_batch
+from ._poisson_relax import close_pairs, relax
 
 log = logging.getLogger("mcrt.poisson")
 
@@ -137,7 +147,7 @@ __all__ = [
 MAX_POINTS = 16384
 
 #: Version of the generator's output; part of the cache file name.
-VERSION = 2
+VERSION = 3
 
 #: Spacing the sampler promises (``d_min >= RHO_GUARANTEE * d_hex``).
 RHO_GUARANTEE = 0.75
@@ -176,20 +186,15 @@ def _check_n(n: int) -> None:
 
 # --------------------------------------------------------------------------- distances
 
-def _wrap_delta(d: np.ndarray) -> np.ndarray:
-    """Minimal-image difference on the unit torus (in [-0.5, 0.5])."""
-    return d - np.rint(d)
-
-
 def toroidal_min_distances(points: np.ndarray) -> np.ndarray:
     """Exact toroidal minimum distance of every set in ``points`` (``(B, n, 2)``).
 
     Returns a float64 array of shape ``(B,)``; ``inf`` for sets of fewer than two
-    points. Coordinates are taken mod 1. Points are binned into a grid of cells of
-    side ``>= d_hex(n)``; no ``n`` points on the torus are all farther apart than
-    ``d_hex(n)`` (the hexagonal packing bound), so the closest pair lies in the same
-    or in neighbouring cells and only those pairs are compared: linear time for
-    well-spread points, never worse than a few times brute force.
+    points. Coordinates are taken mod 1. No ``n`` points on the torus are all
+    farther apart than ``d_hex(n)`` (the hexagonal packing bound), so the closest
+    pair is among the pairs closer than ``1.01 d_hex(n)``, which
+    :func:`~mcrt.samplers._poisson_relax.close_pairs` finds in a grid of cells:
+    linear time for well-spread points, never worse than a few times brute force.
     """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[2] != 2:
@@ -199,46 +204,10 @@ def toroidal_min_distances(points: np.ndarray) -> np.ndarray:
         return np.full(n_sets, np.inf)
     if not np.all(np.isfinite(pts)):
         raise ValueError("points must be finite")
-    pts = pts - np.floor(pts)
-    g = int(1.0 / d_hex(n))
-    if g < 3 or n <= 48:  # few points: all pairs (the grid needs distinct neighbours)
-        out = np.empty(n_sets)
-        step = max(1, BLOCK // (n * n))
-        diag = np.arange(n)
-        for i in range(0, n_sets, step):
-            p = pts[i:i + step]
-            d = _wrap_delta(p[:, :, None, :] - p[:, None, :, :])
-            d2 = (d * d).sum(axis=-1)
-            d2[:, diag, diag] = np.inf
-            out[i:i + step] = np.sqrt(d2.min(axis=(1, 2)))
-        return out
-    p = pts.reshape(-1, 2)
-    cell = np.minimum((p * g).astype(np.int64), g - 1)
-    set_base = np.repeat(np.arange(n_sets) * (g * g), n)
-    flat = set_base + cell[:, 1] * g + cell[:, 0]
-    counts = np.bincount(flat, minlength=n_sets * g * g)
-    m = int(counts.max())
-    order = np.argsort(flat, kind="stable")
-    slot = np.arange(len(flat)) - (np.cumsum(counts) - counts)[flat[order]]
-    slots = np.full((n_sets * g * g, m), -1, dtype=np.int64)  # points of each cell
-    slots[flat[order], slot] = order
-    # Half of the 3x3 neighbourhood plus the cell itself sees every pair once.
-    half = ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1))
-    nb = np.stack([set_base + ((cell[:, 1] + dy) % g) * g + (cell[:, 0] + dx) % g
-                   for dy, dx in half], axis=1)
-    best = np.full(len(p), np.inf)
-    step = max(1, BLOCK // (len(half) * m))
-    for i in range(0, len(p), step):
-        j = min(i + step, len(p))
-        cand = slots[nb[i:j]].reshape(j - i, -1)  # (points, 5 m) candidate partners
-        me = np.arange(i, j)[:, None]
-        valid = cand >= 0
-        valid[:, :m] &= cand[:, :m] > me  # own cell: each pair once, not itself
-        d = _wrap_delta(p[cand] - p[me])
-        d2 = (d * d).sum(axis=-1)
-        d2[~valid] = np.inf
-        best[i:j] = d2.min(axis=1)
-    return np.sqrt(best.reshape(n_sets, n).min(axis=1))
+    i, _, d = close_pairs(pts - np.floor(pts), 1.01 * d_hex(n))
+    best = np.full(n_sets, np.inf)
+    np.minimum.at(best, i // n, (d * d).sum(axis=1))
+    return np.sqrt(best)
 
 
 def toroidal_min_distance(points: np.ndarray) -> float:
@@ -253,6 +222,14 @@ def toroidal_min_distance(points: np.ndarray) -> float:
 
 
 # --------------------------------------------------------------------------- generator
+
+def _float32_torus(points: np.ndarray) -> np.ndarray:
+    """``points`` rounded to float32 values in [0, 1) (a coordinate rounding up to 1
+    becomes 0: the same place on the torus), as float64."""
+    p = points.astype(np.float32)
+    p[p >= 1.0] = 0.0
+    return p.astype(np.float64)
+
 
 def generate(n: int, n_sets: int, seed: int = 0) -> np.ndarray:
     """``n_sets`` toroidal Poisson-disk sets of ``n`` points, ``(n_sets, n, 2)`` float64.
@@ -278,6 +255,7 @@ def generate(n: int, n_sets: int, seed: int = 0) -> np.ndarray:
         extra = math.ceil(0.2 * len(todo)) + 2 if n < 128 else \
             math.ceil(0.05 * len(todo)) + 1 if n < 512 else 0
         pts, ok = generate_batch(n, len(todo) + extra, RHO_TARGET * d_hex(n), rng)
+        pts[ok] = _float32_torus(relax(pts[ok]))
         ok[ok] = toroidal_min_distances(pts[ok]) >= threshold
         good = np.flatnonzero(ok)[:len(todo)]
         out[todo[:len(good)]] = pts[good]
