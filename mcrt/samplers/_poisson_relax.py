@@ -51,12 +51,16 @@ STEPS = 6          # descent steps
 LONG = 0.25        # wavelengths evened out globally: |k| <= LONG sqrt(n)
 RHO_CORE = 0.765   # hard-core distance of the projection, in units of d_hex
 _PROJECTIONS = 32  # projection rounds per step before giving up (the caller verifies)
-_BLOCK = 1 << 18   # candidate points per block in close_pairs
 
 
 def wrap_delta(d: np.ndarray) -> np.ndarray:
     """Minimal-image difference on the unit torus (in [-0.5, 0.5])."""
     return d - np.rint(d)
+
+
+def _norm2(d: np.ndarray) -> np.ndarray:
+    """Squared lengths of the rows of ``d`` (``(k, 2)``)."""
+    return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
 
 
 def close_pairs(points: np.ndarray, cutoff: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -65,77 +69,89 @@ def close_pairs(points: np.ndarray, cutoff: float) -> tuple[np.ndarray, np.ndarr
     ``points`` is ``(B, n, 2)`` with coordinates in [0, 1). Returns flat indices
     ``i < j`` into ``points.reshape(-1, 2)`` and the wrapped differences
     ``p[i] - p[j]``, each unordered pair once, in a deterministic order. Points
-    are binned into cells of side ``>= cutoff``, so partners lie in the same or a
-    neighbouring cell; with fewer than 3 cells per side every pair of a set is
-    compared.
+    are binned into cells of side ``>= cutoff / 2``, so partners lie within two
+    cells; with fewer than 5 cells per side every pair of a set is compared.
     """
     n_sets, n = points.shape[:2]
     p = points.reshape(-1, 2)
-    g = int(1.0 / cutoff) if cutoff > 0 else 0
-    if g < 3 or n <= 48:
+    g = int(2.0 / cutoff) if cutoff > 0 else 0
+    if g < 5 or n <= 48:
         ii, jj = np.triu_indices(n, 1)
         base = (np.arange(n_sets) * n)[:, None]
         i, j = (base + ii).ravel(), (base + jj).ravel()
-    else:
-        cell = np.minimum((p * g).astype(np.int64), g - 1)
-        set_base = np.repeat(np.arange(n_sets) * (g * g), n)
-        flat = set_base + cell[:, 1] * g + cell[:, 0]
-        counts = np.bincount(flat, minlength=n_sets * g * g)
-        m = int(counts.max())
-        order = np.argsort(flat, kind="stable")
-        slot = np.arange(len(flat)) - (np.cumsum(counts) - counts)[flat[order]]
-        slots = np.full((n_sets * g * g, m), -1, dtype=np.int64)  # points of each cell
-        slots[flat[order], slot] = order
-        # The cell itself and half of its 8 neighbours see every pair once.
-        half = ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1))
-        nb = np.stack([set_base + ((cell[:, 1] + dy) % g) * g + (cell[:, 0] + dx) % g
-                       for dy, dx in half], axis=1)
-        parts_i, parts_j = [], []
-        step = max(1, _BLOCK // (len(half) * m))
-        for a in range(0, len(p), step):
-            b = min(a + step, len(p))
-            cand = slots[nb[a:b]].reshape(b - a, -1)  # (points, 5 m) candidate partners
-            me = np.arange(a, b)[:, None]
-            valid = cand >= 0
-            valid[:, :m] &= cand[:, :m] > me  # own cell: each pair once, not itself
-            row, col = np.nonzero(valid)
-            parts_i.append(me[row, 0])
-            parts_j.append(cand[row, col])
-        i, j = np.concatenate(parts_i), np.concatenate(parts_j)
-        lo = np.minimum(i, j)
-        j, i = np.maximum(i, j), lo
-    d = wrap_delta(p[i] - p[j])
-    keep = (d * d).sum(axis=1) < cutoff * cutoff
-    return i[keep], j[keep], d[keep]
+        d = wrap_delta(p[i] - p[j])
+        keep = _norm2(d) < cutoff * cutoff
+        return i[keep], j[keep], d[keep]
+    cell = np.minimum((p * g).astype(np.int64), g - 1)
+    set_base = np.repeat(np.arange(n_sets) * (g * g), n)
+    flat = set_base + cell[:, 1] * g + cell[:, 0]
+    counts = np.bincount(flat, minlength=n_sets * g * g)
+    order = np.argsort(flat, kind="stable")
+    slot = np.arange(len(flat)) - (np.cumsum(counts) - counts)[flat[order]]
+    slots = np.full((n_sets * g * g, int(counts.max())), -1, dtype=np.int64)
+    slots[flat[order], slot] = order  # the points of each cell
+    me = np.arange(len(p))
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    # The cell itself and half of the other 24 cells of its 5 x 5 block see every pair once.
+    for dy in range(0, 3):
+        for dx in range(-2 if dy else 0, 3):
+            cells = set_base + ((cell[:, 1] + dy) % g) * g + (cell[:, 0] + dx) % g
+            for s in range(slots.shape[1]):
+                partner = slots[cells, s]
+                mine = np.flatnonzero(partner > me if dy == dx == 0 else partner >= 0)
+                other = partner[mine]
+                d = wrap_delta(p[mine] - p[other])
+                keep = _norm2(d) < cutoff * cutoff
+                parts.append((mine[keep], other[keep], d[keep]))
+    i = np.concatenate([a for a, _, _ in parts])
+    j = np.concatenate([b for _, b, _ in parts])
+    d = np.concatenate([c for _, _, c in parts])
+    swap = i > j
+    return np.where(swap, j, i), np.where(swap, i, j), np.where(swap[:, None], -d, d)
 
 
-def _move(p: np.ndarray, i: np.ndarray, j: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``p`` with ``+v`` added to the points ``i`` and ``-v`` to ``j``, wrapped to [0, 1)."""
+def _move(p: np.ndarray, i: np.ndarray, j: np.ndarray,
+          v: np.ndarray) -> tuple[np.ndarray, float]:
+    """``p`` with ``+v`` added to the points ``i`` and ``-v`` to ``j``, wrapped to
+    [0, 1), and the largest distance any point moved."""
     size = len(p)
-    out = p.copy()
+    step = np.empty_like(p)
     for axis in range(2):
-        out[:, axis] += (np.bincount(i, v[:, axis], minlength=size)
+        step[:, axis] = (np.bincount(i, v[:, axis], minlength=size)
                          - np.bincount(j, v[:, axis], minlength=size))
-    return out - np.floor(out)
+    out = p + step
+    return out - np.floor(out), float(np.sqrt(_norm2(step).max()))
 
 
-def _separate(p: np.ndarray, shape: tuple[int, int], core: float) -> np.ndarray:
-    """Push apart every pair closer than ``core`` (each such pair halfway each, in
-    rounds over the pairs closer than ``1.25 core``, found again until none is
-    left or the rounds run out)."""
+def _separate(p: np.ndarray, shape: tuple[int, int], core: float,
+              pairs: tuple[np.ndarray, np.ndarray], reach: float) -> np.ndarray:
+    """Push apart every pair closer than ``core`` (each such pair halfway each).
+
+    ``pairs`` must hold every pair closer than ``reach`` now. Only those closer
+    than ``1.25 core`` are kept; each round moves a point by at most ``m``,
+    which uses up ``2 m`` of the margin left above ``core``, and when it runs
+    out, the close pairs are found again. Ends when no pair is closer than
+    ``core`` or after the rounds run out (the caller verifies the spacing)."""
+    i, j = pairs
+    slack = -1.0
+    if reach >= core:
+        reach = min(reach, 1.25 * core)
+        d = wrap_delta(p[i] - p[j])
+        keep = _norm2(d) < reach * reach
+        i, j, slack = i[keep], j[keep], reach - core
     for _ in range(_PROJECTIONS):
-        i, j, _ = close_pairs(p.reshape(shape + (2,)), 1.25 * core)
-        for _ in range(_PROJECTIONS):
-            d = wrap_delta(p[i] - p[j])
-            d2 = (d * d).sum(axis=1)
-            near = d2 < core * core
-            if not near.any():
-                break
-            length = np.maximum(np.sqrt(d2[near]), 1e-12)[:, None]
-            v = 0.5 * (core * (1.0 + 1e-3) - length) / length * d[near]
-            p = _move(p, i[near], j[near], v)
-        if len(close_pairs(p.reshape(shape + (2,)), core)[0]) == 0:
+        if slack < 0.0:
+            i, j, _ = close_pairs(p.reshape(shape + (2,)), 1.25 * core)
+            slack = 0.25 * core
+        d = wrap_delta(p[i] - p[j])
+        d2 = _norm2(d)
+        near = d2 < core * core
+        if not near.any():
             break
+        length = np.maximum(np.sqrt(d2[near]), 1e-12)[:, None]
+        p, moved = _move(p, i[near], j[near],
+                         0.5 * (core * (1.0 + 1e-3) - length) / length * d[near])
+        slack -= 2.0 * moved
     return p
 
 
@@ -199,9 +215,10 @@ def relax(points: np.ndarray, steps: int = STEPS) -> np.ndarray:
         if n >= 64:  # below, |k| <= LONG sqrt(n) is only |k| = 1: the kernel reaches it
             p = _even_out(p, n_sets, n)
         i, j, d = close_pairs(p.reshape(n_sets, n, 2), math.sqrt(c2))
-        w = 1.0 - (d * d).sum(axis=1) / c2
+        w = 1.0 - _norm2(d) / c2
         w = w * w
         w = w * w
-        p = _move(p, i, j, (STEP * w * w)[:, None] * d)
-        p = _separate(p, (n_sets, n), core)
+        p, moved = _move(p, i, j, (STEP * w * w)[:, None] * d)
+        # The kernel's pairs are all those closer than its reach before the move.
+        p = _separate(p, (n_sets, n), core, (i, j), math.sqrt(c2) - 2.0 * moved)
     return p.reshape(n_sets, n, 2)
