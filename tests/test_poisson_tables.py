@@ -136,7 +136,7 @@ def test_tables_are_pinned_to_the_version():
     assert digest == GOLDEN_N16_T8
 
 
-GOLDEN_N16_T8 = "67148ad117df52627eed4594e392635b0242d2884eda3ac0c66b22f3f03c0cb0"
+GOLDEN_N16_T8 = "6ffc603b8bdb2a6fe1dab73c7077ff2f017b471756b981e1fb94644f67a75654"
 
 
 @pytest.mark.parametrize("n", list(range(1, 41)) + [63, 100, 129, 255, 511, 777])
@@ -178,7 +178,7 @@ def test_long_wavelengths_are_flat(cache):
     """The particle-mesh step of the relaxation: at n = 4096 the averaged
     periodogram at the lowest frequencies 0 < |k| < 8 (where a smooth integrand's
     energy is) is < 0.005. Dart throwing alone leaves ~0.06 there and local
-    repulsion alone ~0.04 (measured), the relaxed tables ~1e-4 (16 sets x ~100
+    repulsion alone ~0.04 (measured), the relaxed tables ~2e-4 (16 sets x ~100
     wave vectors: standard error ~1e-5)."""
     n = 4096
     p, k = _averaged_periodogram(pt.load_tables(n).astype(np.float64), 8)
@@ -225,9 +225,9 @@ def test_blue_noise_spectrum(cache):
     low = (k > 0) & (k < 0.5 * sqrt_n)  # well below the peak at ~1.06 sqrt(n)
     high = (k > 1.8 * sqrt_n)
     # Threshold: white noise has E[P(k)] = 1 for every k != 0; saturated dart
-    # throwing alone has ~0.075 on this band, the relaxed tables ~0.003. 0.02
+    # throwing alone has ~0.075 on this band, the relaxed tables ~0.005. 0.02
     # (issue 13's goal) is far from both: the average over 64 sets and ~200 wave
-    # vectors of values ~0.003 has a standard error ~1e-4.
+    # vectors of values ~0.005 has a standard error ~2e-4.
     assert p[low].mean() < 0.02
     assert p[high].mean() == pytest.approx(1.0, abs=0.3)
     # No lattice-like peaks (a lattice would give P = n = 256 at its peaks).

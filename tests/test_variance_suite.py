@@ -37,9 +37,9 @@ fixed seeds, and every margin is derived from the estimator's distribution:
   also covers.
 * **Poisson-disk rate on the disk** (issue 13: <= -1.4): its relaxed tables
   have no low-frequency floor, so it converges like a stratified sampler
-  (measured -1.490 +- 0.016, chi2-scaled, with these settings; dart throwing
+  (measured -1.500 +- 0.019, chi2-scaled, with these settings; dart throwing
   alone gave -1.2, a constant factor over independent points). We require
-  ``[-1.7, -1.4]``: the measured value is 5.6 of its standard errors inside,
+  ``[-1.7, -1.4]``: the measured value is 5 of its standard errors inside,
   and a floor of 0.07 (slope ~-1.2) fails.
 
 * **Real scene**: see :func:`test_jittered_beats_independent_on_cornell_box_edges`.

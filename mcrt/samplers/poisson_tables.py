@@ -28,8 +28,8 @@ fluctuates on every scale), so Poisson-disk sets gained only a constant factor
 over random points (error slope -1.13 on an edge against jittering's -1.5). The
 sets are therefore relaxed after dart throwing (a few particle-mesh and
 Gaussian-blue-noise steps with a hard core, :mod:`mcrt.samplers._poisson_relax`):
-the averaged power spectrum is ~0.003 for ``f = |k| d < 0.5`` (``mcrt
-pattern``'s low-frequency power), peaks at ~2.1-2.8 around ``|k| ~ 1.06
+the averaged power spectrum is ~0.004-0.005 for ``f = |k| d < 0.5`` (``mcrt
+pattern``'s low-frequency power), peaks at ~2.0-2.6 around ``|k| ~ 1.0-1.06
 sqrt(n)`` and then oscillates around 1, and ``rho`` stays >= 0.765.
 The descent stops early, before the sets drift towards a lattice (whose spectrum
 has sharp peaks). Every set is verified with the exact
@@ -79,8 +79,8 @@ Wei [Wei08]_, run with numpy on many sets at once:
 
 The work is linear in the number of points: every round and split handles flat
 blocks of (25 neighbour offsets x active squares), and the number of rounds is
-fixed (per 16,384 points on a 2-core machine: dart throwing ~0.1 s, the
-relaxation ~0.5 s). :func:`generate` checks the spacing of the float32-rounded sets
+fixed (per 16,384 points on a 2-core machine: dart throwing ~0.05 s, the
+relaxation ~0.15 s). :func:`generate` checks the spacing of the float32-rounded sets
 in float64 and returns these float32-representable values, and the float32
 tables store them without rounding. Points are listed in acceptance order, so a
 prefix of a set is itself well spread. Compared with
