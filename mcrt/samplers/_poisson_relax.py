@@ -199,11 +199,13 @@ def _even_out(p: np.ndarray, n_sets: int, n: int) -> np.ndarray:
     return out - np.floor(out)
 
 
-def relax(points: np.ndarray, steps: int = STEPS) -> np.ndarray:
+def relax(points: np.ndarray, steps: int = STEPS, long_range: bool = True) -> np.ndarray:
     """Relaxed copy of the toroidal sets ``points`` (``(B, n, 2)``, float64 in [0, 1)).
 
     Deterministic, see the module docstring; the result's minimum distance is
     ``RHO_CORE * d_hex`` unless a projection did not converge (the caller checks).
+    ``long_range=False`` leaves out the particle-mesh step (for comparison: local
+    repulsion alone leaves long wavelengths as dart throwing made them).
     """
     n_sets, n = points.shape[:2]
     if n < 2 or steps <= 0:
@@ -213,8 +215,8 @@ def relax(points: np.ndarray, steps: int = STEPS) -> np.ndarray:
     core = RHO_CORE * d_hex
     p = points.reshape(-1, 2).astype(np.float64)
     for _ in range(steps):
-        if n >= 64:  # below, |k| <= LONG sqrt(n) is only |k| = 1: the kernel reaches it
-            p = _even_out(p, n_sets, n)
+        if long_range and n >= 64:  # below, |k| <= LONG sqrt(n) is only |k| = 1,
+            p = _even_out(p, n_sets, n)  # which the kernel reaches
         i, j, d = close_pairs(p.reshape(n_sets, n, 2), math.sqrt(c2))
         w = 1.0 - _norm2(d) / c2
         w = w * w
