@@ -213,13 +213,13 @@ def test_adaptive_render_resumes_to_the_uninterrupted_result():
     assert whole.image.tobytes() == again.image.tobytes()  # deterministic
     assert len(whole.passes) >= 3
 
-    def stop_in_third_pass(record):
-        if record.index == 2:
-            raise KeyboardInterrupt  # pass 2 is finished but not yet saved: dropped
+    def stop_after_second_pass(record):
+        if record.index == 1:
+            raise KeyboardInterrupt  # pass 1 is committed before on_pass runs: kept
 
     with pytest.raises(Interrupted) as stop:
         render_adaptive(scene, make_sampler("jittered", 16), settings, seed=3,
-                        on_pass=stop_in_third_pass)
+                        on_pass=stop_after_second_pass)
     state = stop.value.state
     assert state.meta["next_pass"] == 2 and len(stop.value.partial.passes) == 2
     assert np.isfinite(stop.value.partial.image).all()

@@ -15,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.accumulators import block_moments, sequential_block_sums
-from ...core.engine import sampling_integrator, trace_pass
+from ...core.engine import deferred_interrupts, sampling_integrator, trace_pass
 from ...core.job import Checkpoint, CheckpointPacer, Interrupted
 from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats, chan_merge
@@ -43,6 +43,8 @@ class _Accumulator:
         self.traced = np.zeros(pixels, np.int64)
         self.sub_sum = np.zeros((pixels, s * s, channels))
         self.sub_count = np.zeros((pixels, s * s), np.int64)
+        #: Nothing added or restored yet (the sub-pixel grids are still all zero).
+        self.empty = True
 
     def add(self, ids: np.ndarray, m: int, count, means, m2, bad, sub_count,
             sub_sums) -> None:
@@ -57,9 +59,18 @@ class _Accumulator:
         self.count[ids], self.mean[ids], self.m2[ids] = n, mean, merged
         self.nonfinite[ids] += np.asarray(bad, dtype=np.float64).astype(np.int64)
         self.traced[ids] += m
-        self.sub_count[ids] += np.asarray(sub_count, dtype=np.int64).reshape(ids.size, s2)
-        self.sub_sum[ids] += np.stack([np.asarray(x, dtype=np.float64) for x in sub_sums],
-                                      -1).reshape(ids.size, s2, -1)
+        sub_count = np.asarray(sub_count, dtype=np.int64).reshape(ids.size, s2)
+        sub_sums = np.stack([np.asarray(x, dtype=np.float64) for x in sub_sums],
+                            -1).reshape(ids.size, s2, -1)
+        if self.empty and ids.size == self.count.size:
+            # The first wavefront covers every pixel (ids are sorted and unique): the
+            # grids become its sums (0 + x == x exactly), instead of adding them into
+            # ~20 MB of untouched zero pages (page faults cost more than the adds).
+            self.sub_count, self.sub_sum = sub_count, sub_sums
+        else:
+            self.sub_count[ids] += sub_count
+            self.sub_sum[ids] += sub_sums
+        self.empty = False
 
     def stats(self) -> PixelStats:
         return PixelStats(self.count, self.mean, self.m2, self.nonfinite)
@@ -70,7 +81,11 @@ class _Accumulator:
         """Copies of every accumulator array (a snapshot)."""
         return {name: getattr(self, name).copy() for name in self.FIELDS}
 
+    def nbytes(self) -> int:
+        return sum(getattr(self, name).nbytes for name in self.FIELDS)
+
     def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        self.empty = False
         for name in self.FIELDS:
             mine = getattr(self, name)
             if arrays[name].shape != mine.shape:
@@ -139,51 +154,50 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                   "seconds": seconds_before + time.perf_counter() - start},
             arrays={**acc.arrays(), "active": active.copy(), "batch": batch.copy()})
 
-    def finish(state: Checkpoint | None = None) -> AdaptiveRender:
-        if state is not None:
-            acc.restore(state.arrays)
-        return _result(film, acc, width, height, s, settings,
-                       records[:len(state.meta["records"])] if state is not None else records,
-                       sampler, ladder, has_alpha, seconds_before + time.perf_counter() - start)
+    def finish() -> AdaptiveRender:
+        return _result(film, acc, width, height, s, settings, records, sampler, ladder,
+                       has_alpha, seconds_before + time.perf_counter() - start)
 
-    saved = snapshot()
-    pacer = CheckpointPacer(save_every,
-                            state_bytes=sum(a.nbytes for a in saved.arrays.values()))
+    # The accumulator and the loop state change only together, at the end of a
+    # pass and with interrupts held back, so they always describe the passes
+    # finished so far: a checkpoint is copied from them only when one is saved.
+    pacer = CheckpointPacer(save_every, state_bytes=acc.nbytes() + active.nbytes + batch.nbytes)
     try:
         while active.size:
             pass_start = time.perf_counter()
             spent = int(acc.traced.sum())
             sizes = np.unique(batch[active])
             lanes, bad_total = 0, 0
+            staged: list[tuple] = []
             for m in sizes.tolist():
                 for c, ids in enumerate(_chunks(active[batch[active] == m], m, settings)):
                     one_wavefront = k == 0 and ids.size == pixels
                     wave_seed = seed if ours or one_wavefront else hash_keys_int(seed, k, m, c)
                     bad_total += _trace_wavefront(scene, sensor_obj, sampler, integrator, film,
                                                   ids, m, k, wave_seed, ours, first, s,
-                                                  acc, on_samples)
+                                                  acc, staged, on_samples)
                     lanes += ids.size * m
-            _check_progress(acc, spent)
-            leader += int(sizes.max())
-            failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
-                                                     (height, width))
-            dr.sync_thread()
-            record = PassRecord(index=k, active_pixels=int(active.size), samples=lanes,
-                                batch_sizes=tuple(sizes.tolist()),
-                                seconds=time.perf_counter() - pass_start,
-                                converged_pixels=int(pixels - failing.sum()),
-                                nonfinite=bad_total)
-            records.append(record)
+            with deferred_interrupts():
+                for wavefront in staged:
+                    acc.add(*wavefront)
+                _check_progress(acc, spent)
+                leader += int(sizes.max())
+                failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
+                                                         (height, width))
+                dr.sync_thread()
+                record = PassRecord(index=k, active_pixels=int(active.size), samples=lanes,
+                                    batch_sizes=tuple(sizes.tolist()),
+                                    seconds=time.perf_counter() - pass_start,
+                                    converged_pixels=int(pixels - failing.sum()),
+                                    nonfinite=bad_total)
+                records.append(record)
+                active = active_next
+                k += 1
             if on_pass is not None:
                 on_pass(record)
-            active = active_next
-            k += 1
-            saved = snapshot()
-            _save(save, pacer, saved, last=not active.size)
+            _save(save, pacer, snapshot, last=not active.size)
     except KeyboardInterrupt:
-        done = int(saved.meta["next_pass"])
-        raise Interrupted(finish(saved) if done > 0 else None, done, done + 1,
-                          state=saved) from None
+        raise Interrupted(finish() if k > 0 else None, k, k + 1, state=snapshot()) from None
     return finish()
 
 
@@ -204,15 +218,15 @@ def _check_progress(acc: _Accumulator, spent: int) -> None:
 
 
 def _save(save: Callable[[Checkpoint], object] | None, pacer: CheckpointPacer,
-          saved: Checkpoint, last: bool) -> None:
+          snapshot: Callable[[], Checkpoint], last: bool) -> None:
     """Checkpoint while the render runs: paced, and always after the last pass
     (kept until the caller has written the result)."""
     if save is None:
         return
     if last:
-        save(saved)
+        save(snapshot())
     else:
-        pacer.maybe(save, lambda: saved)
+        pacer.maybe(save, snapshot)
 
 
 def _integrator_and_settings(
@@ -303,9 +317,9 @@ class _Wavefront:
     per-pixel moments and sub-pixel sums, each pixel's lanes summed in order
     (deterministic, no atomics), merged into ``acc`` on commit."""
 
-    def __init__(self, acc: _Accumulator, ids: np.ndarray, s: int, on_samples: Any,
+    def __init__(self, staged: list[tuple], ids: np.ndarray, s: int, on_samples: Any,
                  k: int) -> None:
-        self.acc, self.ids, self.s, self.on_samples, self.k = acc, ids, s, on_samples, k
+        self.staged, self.ids, self.s, self.on_samples, self.k = staged, ids, s, on_samples, k
         self.pending: tuple | None = None
         self.bad = 0
 
@@ -346,7 +360,7 @@ class _Wavefront:
 
     def commit(self) -> None:
         if self.pending is not None:
-            self.acc.add(*self.pending)
+            self.staged.append(self.pending)
             self.pending = None
 
 
@@ -359,9 +373,12 @@ def _rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[Any]:
 
 def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, m: int,
                      k: int, wave_seed: int, ours: bool, differential_spp: int, s: int,
-                     acc: _Accumulator, on_samples) -> int:
+                     acc: _Accumulator, staged: list[tuple], on_samples) -> int:
     """Trace ``m`` new samples of each pixel in ``ids`` (one compacted wavefront)
-    with the engine's pass step; returns the non-finite samples found."""
+    with the engine's pass step, its sums appended to ``staged`` (merged into
+    ``acc`` by the caller at the end of the pass: a pixel is in one wavefront per
+    pass, so ``acc`` already holds its earlier passes); returns the non-finite
+    samples found."""
     lanes = ids.size * m
     if (k + 1) * m >= 1 << 32:
         raise McrtError("adaptive: too many passes for 32-bit sample indices; raise growth")
@@ -380,7 +397,7 @@ def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, 
     else:
         sampler.set_samples_per_wavefront(m)
         sampler.seed(wave_seed, lanes)
-    wavefront = _Wavefront(acc, ids, s, on_samples, k)
+    wavefront = _Wavefront(staged, ids, s, on_samples, k)
     # Ray differentials are scaled for the first pass's count in every pass,
     # which keeps one kernel for all passes.
     trace_pass(scene, sensor, integrator, sampler, pixel_of_index(film, pixel_index),
