@@ -2,7 +2,7 @@
 
 Dart throwing (:mod:`mcrt.samplers._poisson_darts`) leaves a low-frequency power
 floor of ~0.075 in the averaged spectrum (a random packing's density fluctuates
-on every scale), so its integration error fell only like ``N^-1.13`` on an
+on every scale), so its integration error fell only like ``N^-1.2`` on an
 edge. Each of a few relaxation steps removes it on two scales:
 
 * **Long wavelengths** (``|k| <= LONG sqrt(n)``, from ``n >= 64``): one
@@ -31,7 +31,7 @@ Measured (``mcrt pattern``'s low-frequency power, ``f < 0.5``, over the tables):
 9 ... 1024, and ``P(k) < 1e-3`` for ``|k| < 10`` at ``n >= 1024``; ``rho``
 stays >= 0.765; the spectral peak rises from ~1.7 to ~2.0-2.6 at
 ``|k| ~ 1.0-1.06 sqrt(n)``; the MSE slope on ``mcrt integrate disk`` is -1.49
-(jittered -1.54, dart throwing alone -1.13). More steps lower the floor a little
+(jittered -1.54, dart throwing alone -1.20). More steps lower the floor a little
 (6 steps: 0.003) and raise the peak (2.3-3.2: more regular sets, drifting towards
 a lattice), at 1.5x the cost, which is why the descent stops early instead of
 converging.

@@ -25,7 +25,7 @@ float32 symmetries and shifts (~1e-7). Saturated (maximal) dart throwing reaches
 ``rho = d_min / d_hex ~ 0.78`` [RSA]_, but leaves a low-frequency floor in the
 spectrum (~0.075 near ``k = 0`` at every ``n``: a random packing's density
 fluctuates on every scale), so Poisson-disk sets gained only a constant factor
-over random points (error slope -1.13 on an edge against jittering's -1.5). The
+over random points (error slope -1.2 on an edge against jittering's -1.5). The
 sets are therefore relaxed after dart throwing (a few particle-mesh and
 Gaussian-blue-noise steps with a hard core, :mod:`mcrt.samplers._poisson_relax`):
 the averaged power spectrum is ~0.004-0.005 for ``f = |k| d < 0.5`` (``mcrt
@@ -79,7 +79,7 @@ Wei [Wei08]_, run with numpy on many sets at once:
 
 The work is linear in the number of points: every round and split handles flat
 blocks of (25 neighbour offsets x active squares), and the number of rounds is
-fixed (per 16,384 points on a 2-core machine: dart throwing ~0.05 s, the
+fixed (per 16,384 points on a 2-core machine: dart throwing ~0.08 s, the
 relaxation ~0.15 s). :func:`generate` checks the spacing of the float32-rounded sets
 in float64 and returns these float32-representable values, and the float32
 tables store them without rounding. Points are listed in acceptance order, so a
