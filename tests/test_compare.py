@@ -53,6 +53,13 @@ def test_shipped_configs_are_valid():
     # The full study compares every sampler mcrt knows, ours and Mitsuba's, in that order.
     assert tuple(s.name for s in full.samplers) == ALL_SAMPLERS
     assert {s.name for s in full.scenes} == {"checkerboard", "cornell_box"}
+    # The 12-seed rerun of the close Cornell cells renders the full study's scene against
+    # the same reference settings, so it reuses the full study's cached reference.
+    best = load_config(ROOT / "configs" / "cornell_best.toml")
+    assert best.reference == full.reference
+    cornell = next(s for s in full.scenes if s.name == "cornell_box")
+    assert [(s.path, s.params) for s in best.scenes] == [(cornell.path, cornell.params)]
+    assert len(best.seeds) > len(full.seeds)
 
 
 @pytest.mark.parametrize("change, message", [
