@@ -254,19 +254,6 @@ def _cornell(name: str, params: dict) -> mi.Scene:
     return mi.load_dict(scene)
 
 
-@pytest.mark.parametrize("name", SOBOLS)
-def test_multi_pass_render_equals_single_pass(name):
-    """As for the other plugins: 4 passes give the one-pass image, which equals
-    mi.render's (tolerance: float32 atomics order, ~1e-6; noise is ~1e-1)."""
-    scene = _cornell(name, {"width": 16} if name == "zsobol" else {})
-    one = render_film(scene, spp=16, seed=3)
-    four = render_film(scene, spp=16, seed=3, max_lanes=16 * 16 * 4)
-    assert four.passes == 4 and one.passes == 1
-    np.testing.assert_allclose(four.image, one.image, rtol=1e-5, atol=1e-5)
-    reference = np.array(mi.render(scene, spp=16, seed=3))
-    np.testing.assert_allclose(one.image, reference, rtol=1e-5, atol=1e-5)
-
-
 def test_mcrt_fills_in_the_film_width():
     """A scene's zsobol without `width` renders through mcrt, which knows the film."""
     scene = _cornell("zsobol", {})
