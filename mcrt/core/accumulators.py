@@ -6,9 +6,10 @@ thread counts (Mitsuba's ``ImageBlock.put`` adds with atomics, whose order
 depends on thread scheduling). A sample with a non-finite channel is left out
 entirely (no value, no weight) and counted for the pixel it was drawn in.
 
-Passes of one sample per pixel (large films) are folded in inside the tracing
-kernel itself: nothing per lane is ever stored. Passes of several samples per
-pixel store the pass's values (at most :data:`~mcrt.core.engine.MAX_LANES_PER_PASS`
+A film with a box filter folds passes of up to :data:`FOLD` samples per pixel
+into its sums inside the tracing kernel itself: nothing per lane is ever stored
+(see :attr:`FilmAccumulator.fold`). Other passes of several samples per pixel
+store the pass's values (at most :data:`~mcrt.core.engine.MAX_LANES_PER_PASS`
 lanes) and reduce them per pixel, each pixel's samples in sample order.
 """
 
@@ -25,6 +26,15 @@ import numpy as np
 from ..errors import McrtError
 from .stats import PixelStats
 from .trace import CameraSamples, film_grid_size
+
+#: Most samples of one pixel a kernel adds into a box-filtered film as it traces
+#: them. The pixel's samples are neighbouring lanes, which on Dr.Jit's LLVM
+#: backend lie in one SIMD packet (4, 8 or 16 lanes, aligned; a thread's block of
+#: work is whole packets), and its non-atomic scatter-add (``NoConflicts``) sums a
+#: packet's lanes per target before it adds the sum: one add per pixel and pass,
+#: by one thread, whatever the thread count. In float64 the sum of four float32
+#: values is exact but in extreme dynamic range, so its order does not matter.
+FOLD = 4
 
 
 def _finite(values: Sequence[Any]) -> mi.Bool:
@@ -81,16 +91,27 @@ class FilmAccumulator:
                         for dx in range(-reach, reach + 1)]
         self.sums = [dr.zeros(mi.Float64, self.ext[0] * self.ext[1]) for _ in range(channels)]
         self.nonfinite = dr.zeros(mi.UInt32, self.grid[0] * self.grid[1])
-        self._pending: tuple[list[Any], Any] | None = None
+        self._pending: tuple[list[Any], Any, Any] | None = None
+
+    @property
+    def fold(self) -> int:
+        """Samples per pixel and pass this film adds in while tracing them
+        (:data:`FOLD` for a box filter on the LLVM backend, else 1, or 0 when
+        every pass is stored): the engine's ``fold`` (see
+        :func:`~mcrt.core.engine.pass_shape`)."""
+        if not self.box:
+            return 0
+        return FOLD if dr.backend_v(self.sums[0]) == dr.JitBackend.LLVM else 1
 
     # -- the engine's interface ------------------------------------------------
     def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
         if len(values) != self.channels:
             raise McrtError(f"the film expects {self.channels} channels, got {len(values)}")
-        if group == 1 and self.box:  # one sample per pixel and lane: fold in while tracing
+        if group <= self.fold and group & (group - 1) == 0:  # fold in while tracing
             finite = _finite(values)
+            lane = dr.arange(mi.UInt32, self.ext[0] * self.ext[1] * group)
             self._pending = ([mi.Float64(dr.select(finite, v, 0.0)) for v in values],
-                             dr.select(finite, mi.UInt32(0), mi.UInt32(1)))
+                             dr.select(finite, mi.UInt32(0), mi.UInt32(1)), lane // group)
             return
         # Store the pass's raw samples (the sampler's next state is evaluated with
         # them), except the weight channel (the literal 1) and, for a box filter,
@@ -119,21 +140,21 @@ class FilmAccumulator:
         else:
             assert position is not None
             terms = self._gathered(sample, position, group)
-        self._pending = (terms, bad_pixels)  # summed by the kernel that adds them in (commit)
+        self._pending = (terms, bad_pixels, None)  # summed by the kernel that adds them in
 
     def commit(self) -> None:
-        """Add the pass into the sums in place: one add per element, no two lanes
-        on one element (so no atomics and no second copy of the sums), in the
-        kernel that traces the pass (one sample per pixel) or that reduces each
-        pixel's stored samples (several)."""
+        """Add the pass into the sums in place: one add per element and pass (so
+        no atomics and no second copy of the sums), in the kernel that traces the
+        pass (box filter, up to :data:`FOLD` samples per pixel, summed within
+        their SIMD packet) or that reduces each pixel's stored samples."""
         if self._pending is None:
             return
-        terms, bad = self._pending
-        pixels = dr.arange(mi.UInt32, dr.width(self.sums[0]))
+        terms, bad, target = self._pending
+        if target is None:  # one term per pixel
+            target = dr.arange(mi.UInt32, dr.width(self.sums[0]))
         for s, t in zip(self.sums, terms):
-            dr.scatter_add(s, t, pixels, mode=dr.ReduceMode.NoConflicts)
-        dr.scatter_add(self.nonfinite, bad, dr.arange(mi.UInt32, dr.width(self.nonfinite)),
-                       mode=dr.ReduceMode.NoConflicts)
+            dr.scatter_add(s, t, target, mode=dr.ReduceMode.NoConflicts)
+        dr.scatter_add(self.nonfinite, bad, target, mode=dr.ReduceMode.NoConflicts)
         dr.eval(self.sums, self.nonfinite)
         self._pending = None
 

@@ -7,16 +7,19 @@ of every pixel (``group`` divides ``spp``). Each pass: run the ``on_pass`` hook
 the sampler, and commit the pass with Ctrl-C held back, so an interrupt never
 leaves half a pass in the sums. The passes of one render form *one* pattern per
 pixel: mcrt's counter-based samplers continue their sequences exactly across
-passes, Mitsuba's continue through ``advance()``.
+passes, Mitsuba's stratified samplers continue through ``advance()``, and its
+``independent`` is seeded afresh by every pass (:func:`reseeds_each_pass`).
 
 Accumulators (:mod:`mcrt.core.accumulators`) keep their sums on the device in
 float64 and combine each pass elementwise (no atomics), so a render is
 bit-identical across runs and thread counts. Their state is a dict of numpy
 arrays: that is what a checkpoint stores and what resuming restores.
 
-The pass size is a pure function of the film size and sample count
-(:func:`pass_shape`), never of the machine, so results do not depend on where
-they were computed.
+The pass size is a pure function of the film (size; a box filter folds
+passes of up to 4 samples per pixel in as it traces them), the sample count,
+the kind of sampler and the backend (:func:`pass_shape`), never of the
+machine's thread count or free memory (unless that is short:
+:func:`fitted_shape`), so results do not depend on where they were computed.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from ..samplers._stratified import split_sample
 from ..samplers.base import is_mcrt_sampler
 from .memory import BYTES_PER_LANE, KERNEL_BYTES, lane_budget
 from .progress import Progress
-from .sampling import bind_film_width
+from .sampling import bind_film_width, sampler_name
 from .trace import CameraSamples, film_grid_size, pixel_of_index, trace
 
 log = logging.getLogger("mcrt.engine")
@@ -72,9 +75,15 @@ class PassShape:
 
 
 def pass_shape(pixels: int, spp: int, max_lanes: int | None = None,
-               passes: int | None = None) -> PassShape:
+               passes: int | None = None, fold: int = 1,
+               fold_lanes: int | None = None) -> PassShape:
     """Largest ``group`` dividing ``spp`` with ``pixels * group <= max_lanes``
-    (at least 1), or ``spp // passes`` when the number of passes is forced."""
+    (at least 1), or ``spp // passes`` when the number of passes is forced.
+
+    ``fold`` > 1: the accumulator folds passes of up to ``fold`` samples per
+    pixel (a power of two) into its sums as it traces them, storing nothing per
+    lane, so such a group may take up to ``fold_lanes`` lanes (default ``fold``
+    times the limit): a larger film then renders in fewer, larger passes."""
     if spp < 1:
         raise McrtError(f"a render needs at least 1 sample per pixel, got {spp}")
     if passes is not None:
@@ -84,24 +93,28 @@ def pass_shape(pixels: int, spp: int, max_lanes: int | None = None,
     limit = max_lanes or MAX_LANES_PER_PASS
     group = max((g for g in range(1, spp + 1) if spp % g == 0 and pixels * g <= limit),
                 default=1)
-    return PassShape(pixels, spp, group)
+    folded = fold_lanes if fold_lanes is not None else fold * limit
+    while fold > group and (spp % fold or pixels * fold > folded):
+        fold //= 2
+    return PassShape(pixels, spp, max(group, fold))
 
 
 def fitted_shape(pixels: int, spp: int, max_lanes: int | None = None,
                  passes: int | None = None, bytes_per_lane: int = BYTES_PER_LANE,
-                 fixed_bytes: int = 0) -> PassShape:
+                 fixed_bytes: int = 0, fold: int = 1,
+                 fold_lanes: int | None = None) -> PassShape:
     """:func:`pass_shape`, with passes made smaller only when the default ones
     would not fit the memory available (cgroup, ``ulimit -v``, the host: see
     :mod:`mcrt.core.memory`), with a note: such a render may differ in the last
     bits from one made with the default passes. Never below one sample per pixel
     per pass."""
-    shape = pass_shape(pixels, spp, max_lanes, passes)
+    shape = pass_shape(pixels, spp, max_lanes, passes, fold, fold_lanes)
     if max_lanes is not None or passes is not None:
         return shape
     budget = lane_budget(bytes_per_lane, fixed_bytes + KERNEL_BYTES)
     if budget is None or shape.lanes <= budget:
         return shape
-    smaller = pass_shape(pixels, spp, max(pixels, budget))
+    smaller = pass_shape(pixels, spp, max(pixels, budget), fold=fold, fold_lanes=budget)
     if smaller.passes != shape.passes:
         log.info("passes of %d samples per pixel (not %d) to fit the memory available; "
                  "the image may differ in the last bits from one made with more memory",
@@ -147,6 +160,22 @@ def film_values(film: mi.Film, samples: CameraSamples) -> list[Any]:
         values.append(dr.select(samples.valid, mi.Float(1.0), mi.Float(0.0)))
     values.append(mi.Float(1.0))
     return values + list(samples.aovs)
+
+
+def reseeds_each_pass(sampler: mi.Sampler) -> bool:
+    """Whether each pass seeds ``sampler`` afresh with :func:`resume_seed` of its
+    index instead of advancing it: Mitsuba's ``independent``, whose samples are
+    independent whatever the seed, so a pass never stores its per-lane random
+    state (16 bytes a lane) for the next, and a resumed or distributed pass is
+    exactly the pass an uninterrupted render traces."""
+    return not is_mcrt_sampler(sampler) and sampler_name(sampler) == "independent"
+
+
+def keeps_lane_state(sampler: mi.Sampler) -> bool:
+    """Whether ``sampler`` stores random state per lane between passes
+    (Mitsuba's stratified samplers): their passes stay within
+    :data:`MAX_LANES_PER_PASS` lanes even when the accumulator stores nothing."""
+    return not is_mcrt_sampler(sampler) and not reseeds_each_pass(sampler)
 
 
 def resume_seed(sampler: mi.Sampler, seed: int, passes_done: int) -> int:
@@ -232,14 +261,19 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
     if is_mcrt_sampler(sampler):
         for _ in range(run.done):
             sampler.advance()  # counter-based: the exact next samples
+    reseed = reseeds_each_pass(sampler)
     pixel_index, _ = split_sample(dr.arange(mi.UInt32, shape.lanes), shape.group)
     pixel = pixel_of_index(film, pixel_index)
+    first, end = run.done, shape.passes if stop is None else stop
     dr.sync_thread()
     with termination_as_interrupt():
-        for index in range(run.done, shape.passes if stop is None else stop):
+        for index in range(first, end):
             start = time.perf_counter()
             if on_pass is not None:
                 on_pass(index, shape.passes)
+            if reseed and index > first:
+                pass_seed: Any = resume_seed(sampler, seed, index)  # the stub wants a UInt
+                sampler.seed(pass_seed, shape.lanes)
 
             def committed(index: int = index, start: float = start) -> None:
                 run.done = index + 1
@@ -247,7 +281,7 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
 
             trace_pass(scene, sensor_obj, integrator, sampler, pixel, shape.spp, accumulator,
                        shape.group, values, committed,
-                       advance=index + 1 < (shape.passes if stop is None else stop))
+                       advance=not reseed and index + 1 < end)
             if progress is not None:
                 progress.update(1)
 

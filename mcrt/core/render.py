@@ -26,10 +26,12 @@ import numpy as np
 from ..errors import McrtError
 from .accumulators import FilmAccumulator, MomentsAccumulator, release_cached_memory
 from .engine import (
+    MAX_LANES_PER_PASS,
     Accumulator,
     PassRun,
     fitted_shape,
     grid_pixels,
+    keeps_lane_state,
     pass_shape,
     run_passes,
     sampling_integrator,
@@ -214,9 +216,12 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     channels = film.create_block().channel_count()
     if resume is not None and passes is None and max_lanes is None:
         passes = int(resume.meta.get("settings", [0, 0])[1]) or None  # its own pass size
-    run = PassRun(fitted_shape(width * height, spp, max_lanes, passes,
-                               fixed_bytes=film_bytes(width * height, channels)))
     accumulator = FilmAccumulator(film, channels)
+    # A sampler with per-lane state keeps folded passes to the usual size.
+    fold_lanes = (max_lanes or MAX_LANES_PER_PASS) if keeps_lane_state(sampler) else None
+    run = PassRun(fitted_shape(width * height, spp, max_lanes, passes,
+                               fixed_bytes=film_bytes(width * height, channels),
+                               fold=accumulator.fold, fold_lanes=fold_lanes))
     if resume is not None:
         if resume.meta.get("settings") != [spp, run.shape.passes, seed]:
             raise McrtError("the saved partial render was made with other settings")
