@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from ._gc import collection_held_back
 from ._platform import ensure_variant, initialise
 from .errors import McrtError
 
@@ -24,10 +25,10 @@ if TYPE_CHECKING:
 
 from ._version import __version__  # noqa: E402,F401  (re-exported)
 
-initialise()
-
-from . import samplers  # noqa: E402  (needs an active variant)
-from .render import distribution  # noqa: E402
+with collection_held_back():  # Mitsuba's and Dr.Jit's imports: ~10^5 new objects
+    initialise()
+    from . import samplers  # noqa: E402  (needs an active variant)
+    from .render import distribution  # noqa: E402
 
 
 def _adaptive_integrator(props: mi.Properties) -> mi.Integrator:

@@ -23,6 +23,7 @@ import sys
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
 
+from .._gc import collection_held_back
 from ..errors import McrtError
 
 #: Subcommand -> its module in this package, in the order ``mcrt --help`` lists them.
@@ -213,13 +214,15 @@ def _mitsuba_log(quiet: bool) -> Iterator[None]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``mcrt`` console script."""
+    process = argv is None  # the console script: this process runs one command
     argv = sys.argv[1:] if argv is None else list(argv)
     command = command_of(argv)
     # A parser with just the one subcommand parses its arguments exactly as the
     # full parser would (same prog, usage and messages).
     # Without one (--help, --version, a typo, nothing) the subcommands' names and
     # summaries are all the parser needs.
-    parser = build_parser(summary=True) if command is None else build_parser([command])
+    with collection_held_back(freeze=process):  # the command's modules
+        parser = build_parser(summary=True) if command is None else build_parser([command])
     args = parser.parse_args(argv)
     from ..core.engine import termination_as_interrupt
 

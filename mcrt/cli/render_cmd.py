@@ -32,6 +32,7 @@ from ..core.trace import film_grid_size
 from ..errors import McrtError
 from ..io import write_exr, write_png
 from ..io.heatmap import write_heatmap
+from ..io.parallel import write_all
 from ..render import adaptive
 from ..render.loaded import FilmPassTask, film_pass, remember_planned
 from ..render.plan import parse_effect_overrides, plan_scene
@@ -288,8 +289,8 @@ def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -
     layers = {}
     if result.nonfinite_samples:
         layers["nonfinite"] = result.nonfinite.astype("float32")
-    write_exr(exr_path, layers, meta, channels=channels)
-    write_png(png_path, result.rgb)  # linear sRGB, whatever the pixel format
+    write_all(lambda: write_exr(exr_path, layers, meta, channels=channels),
+              lambda: write_png(png_path, result.rgb))  # linear sRGB, whatever the format
 
 
 def _resume_paths(exr_path: Path, key: str) -> tuple[Path, Path]:
@@ -324,9 +325,10 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     def write(result, extra: dict) -> None:
         meta = {**metadata, **result.summary(), "sampler": result.sampler, **extra}
         meta.pop("render_seconds", None)  # no timings: equal renders, equal files
-        write_exr(exr_path, result.layers(), meta)
-        write_png(png_path, result.rgb)
-        write_heatmap(heat_path, result.spp, settings.min_spp, settings.max_spp)
+        write_all(lambda: write_exr(exr_path, result.layers(), meta),
+                  lambda: write_png(png_path, result.rgb),
+                  lambda: write_heatmap(heat_path, result.spp, settings.min_spp,
+                                        settings.max_spp))
 
     try:
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
