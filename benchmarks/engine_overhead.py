@@ -1,21 +1,25 @@
 """The pass engine alone against ``mi.render``, in one process.
 
 ``mcrt.core.render.render_film`` and ``mi.render`` of the same scene (the Cornell
-box), sampler and spp, each warmed up once, then ``--rounds`` interleaved runs;
-wall time with ``dr.sync_thread()`` and the image copied to numpy in both. Prints
-the median times and the ratio of medians (engine / mi.render), and, as a floor
-for any design that splits a render into passes, ``mi.render`` itself called
-once per pass of the engine's pass shape (same number of samples). This separates
-the engine's cost from the command line's fixed costs (imports, plan, outputs),
-which ``benchmarks/render_overhead.py`` measures end to end.
+box with its box filter, and a copy with Mitsuba's default Gaussian filter),
+sampler and spp, each warmed up once, then ``--rounds`` interleaved runs (the
+order alternates); wall and CPU time (all threads) with ``dr.sync_thread()`` and
+the image copied to numpy in both. Prints the medians and the ratios of medians
+(engine / mi.render), and, as a floor for any design that splits a render into
+passes, ``mi.render`` itself called once per pass of the engine's pass shape
+(same number of samples). This separates the engine's cost from the command
+line's fixed costs (imports, plan, outputs), which
+``benchmarks/render_overhead.py`` measures end to end.
 
     python benchmarks/engine_overhead.py [--res 256 1024] [--spp 16] [--rounds 5]
+                                         [--filters box gaussian]
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,18 +30,33 @@ import numpy as np
 mi.set_variant("llvm_ad_rgb")
 
 import mcrt  # noqa: E402,F401  (registers the samplers)
-from mcrt.core.engine import pass_shape  # noqa: E402
 from mcrt.core.render import render_film  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
 
 CORNELL = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
 
 
-def timed(fn) -> float:
-    start = time.perf_counter()
+BOX_FILTER = '<rfilter type="box"/>'
+
+
+def timed(fn) -> tuple[float, float]:
+    """(wall, CPU) seconds of ``fn()``, synchronised."""
+    start, cpu = time.perf_counter(), time.process_time()
     fn()
     dr.sync_thread()
-    return time.perf_counter() - start
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def scene_file(kind: str, folder: Path) -> Path:
+    """The Cornell box with its box filter, or a copy with Mitsuba's default."""
+    if kind == "box":
+        return CORNELL
+    text = CORNELL.read_text()
+    if BOX_FILTER not in text:
+        raise SystemExit(f"{CORNELL} no longer has {BOX_FILTER}: update this benchmark")
+    copy = folder / "cornell_gaussian.xml"
+    copy.write_text(text.replace(BOX_FILTER, ""))
+    return copy
 
 
 def main() -> None:
@@ -46,35 +65,47 @@ def main() -> None:
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--samplers", nargs="+", default=["jittered", "independent"])
+    parser.add_argument("--filters", nargs="+", choices=["box", "gaussian"],
+                        default=["box", "gaussian"])
     args = parser.parse_args()
-    print("| film | sampler | engine [s] | mi.render [s] | ratio | mi.render in the engine's "
-          "passes [s] | ratio to mi.render |\n|---|---|---|---|---|---|---|")
-    for res in args.res:
-        for name in args.samplers:
-            scene = mi.load_file(str(CORNELL), res=str(res), sampler=name)
+    print("| film | sampler | engine [s] | mi.render [s] | ratio (wall) | ratio (CPU) | "
+          "mi.render in the engine's passes [s] | ratio to mi.render |\n"
+          "|---|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for res in args.res:
+            for kind in args.filters:
+                for name in args.samplers:
+                    row(scene_file(kind, Path(tmp)), kind, res, name, args.spp, args.rounds)
 
-            def ours() -> None:
-                render_film(scene, make_sampler(name, args.spp), seed=0)
 
-            def theirs() -> None:
-                np.array(mi.render(scene, spp=args.spp))
+def row(path: Path, kind: str, res: int, name: str, spp: int, rounds: int) -> None:
+    scene = mi.load_file(str(path), res=str(res), sampler=name)
 
-            shape = pass_shape(res * res, args.spp)
+    def ours() -> None:
+        render_film(scene, make_sampler(name, spp), seed=0)
 
-            def split() -> None:  # Mitsuba itself, one call per pass of the engine's shape
-                for index in range(shape.passes):
-                    np.array(mi.render(scene, spp=shape.group, seed=index))
+    def theirs() -> None:
+        np.array(mi.render(scene, spp=spp))
 
-            for fn in (ours, theirs, split):
-                fn()
-            a, b, c = [], [], []
-            for _ in range(args.rounds):
-                a.append(timed(ours))
-                b.append(timed(theirs))
-                c.append(timed(split))
-            ma, mb, mc = (statistics.median(x) for x in (a, b, c))
-            print(f"| {res}^2 | {name} | {ma:.3f} | {mb:.3f} | {ma / mb:.3f} | {mc:.3f} "
-                  f"({shape.passes} x {shape.group} spp) | {mc / mb:.3f} |", flush=True)
+    passes = render_film(scene, make_sampler(name, spp), seed=0).passes  # the engine's shape
+    group = spp // passes
+
+    def split() -> None:  # Mitsuba itself, one call per pass of the engine's shape
+        for index in range(passes):
+            np.array(mi.render(scene, spp=group, seed=mi.UInt32(index)))
+
+    runs: dict = {fn: [] for fn in (ours, theirs, split)}
+    for fn in runs:
+        fn()
+    for r in range(rounds):
+        for fn in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
+            runs[fn].append(timed(fn))
+    wall = {fn: statistics.median(t[0] for t in v) for fn, v in runs.items()}
+    cpu = {fn: statistics.median(t[1] for t in v) for fn, v in runs.items()}
+    print(f"| {res}^2 {kind} | {name} | {wall[ours]:.3f} | {wall[theirs]:.3f} | "
+          f"{wall[ours] / wall[theirs]:.3f} | {cpu[ours] / cpu[theirs]:.3f} | "
+          f"{wall[split]:.3f} ({passes} x {group} spp) | {wall[split] / wall[theirs]:.3f} |",
+          flush=True)
 
 
 if __name__ == "__main__":
