@@ -49,16 +49,21 @@ def test_interrupted_render_resumes_bit_identically(name):
     assert resumed.image.tobytes() == whole.image.tobytes()
 
 
+def whole_and_resumed(scene, name: str):
+    """``scene`` rendered at 16 spp in 4 passes (seed 5) without interruption, and
+    interrupted after 2 passes then resumed."""
+    whole = render_film(scene, make_sampler(name, 16), seed=5, passes=4)
+    with pytest.raises(Interrupted) as stop:
+        render_film(scene, make_sampler(name, 16), seed=5, passes=4, on_pass=interrupt_at(2))
+    resumed = render_film(scene, make_sampler(name, 16), seed=5, passes=4,
+                          resume=stop.value.state)
+    return whole, resumed
+
+
 def test_mitsuba_independent_resumes_bit_identically():
     """Mitsuba's ``independent`` is seeded afresh from (seed, pass) by every pass,
     so the resumed passes are the uninterrupted ones, bit for bit."""
-    scene = small_cornell(16, box_filter=True)
-    whole = render_film(scene, make_sampler("independent", 16), seed=5, passes=4)
-    with pytest.raises(Interrupted) as stop:
-        render_film(scene, make_sampler("independent", 16), seed=5, passes=4,
-                    on_pass=interrupt_at(2))
-    resumed = render_film(scene, make_sampler("independent", 16), seed=5, passes=4,
-                          resume=stop.value.state)
+    whole, resumed = whole_and_resumed(small_cornell(16, box_filter=True), "independent")
     assert resumed.image.tobytes() == whole.image.tobytes()
 
 
@@ -67,12 +72,7 @@ def test_mitsuba_stratified_sampler_resumes_with_fresh_samples():
     render continues with a derived seed, so the resumed passes differ from the
     interrupted ones (no repeated samples) and the result is a valid render."""
     scene = small_cornell(16, box_filter=True)
-    whole = render_film(scene, make_sampler("multijitter", 16), seed=5, passes=4)
-    with pytest.raises(Interrupted) as stop:
-        render_film(scene, make_sampler("multijitter", 16), seed=5, passes=4,
-                    on_pass=interrupt_at(2))
-    resumed = render_film(scene, make_sampler("multijitter", 16), seed=5, passes=4,
-                          resume=stop.value.state)
+    whole, resumed = whole_and_resumed(scene, "multijitter")
     assert not np.array_equal(resumed.image, whole.image)
     # Same expectation: the image means agree within the Monte Carlo noise. The
     # standard error of an image mean comes from independent samples' per-pixel
