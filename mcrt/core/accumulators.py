@@ -149,12 +149,16 @@ class FilmAccumulator:
         their SIMD packet) or that reduces each pixel's stored samples."""
         if self._pending is None:
             return
-        terms, bad, target = self._pending
-        if target is None:  # one term per pixel
-            target = dr.arange(mi.UInt32, dr.width(self.sums[0]))
+        terms, bad, lane_pixel = self._pending
+        # Folded: each lane's pixel (a box film's block is its pixel grid). Stored:
+        # one term per element, the sums over the block, the counts over the grid.
+        sums_at = lane_pixel if lane_pixel is not None else \
+            dr.arange(mi.UInt32, dr.width(self.sums[0]))
+        counts_at = lane_pixel if lane_pixel is not None else \
+            dr.arange(mi.UInt32, dr.width(self.nonfinite))
         for s, t in zip(self.sums, terms):
-            dr.scatter_add(s, t, target, mode=dr.ReduceMode.NoConflicts)
-        dr.scatter_add(self.nonfinite, bad, target, mode=dr.ReduceMode.NoConflicts)
+            dr.scatter_add(s, t, sums_at, mode=dr.ReduceMode.NoConflicts)
+        dr.scatter_add(self.nonfinite, bad, counts_at, mode=dr.ReduceMode.NoConflicts)
         dr.eval(self.sums, self.nonfinite)
         self._pending = None
 
