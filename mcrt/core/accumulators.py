@@ -24,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
+from .packed import Packed
 from .stats import PixelStats
 from .trace import CameraSamples, film_grid_size
 
@@ -113,34 +114,25 @@ class FilmAccumulator:
             self._pending = ([mi.Float64(dr.select(finite, v, 0.0)) for v in values],
                              dr.select(finite, mi.UInt32(0), mi.UInt32(1)), lane // group)
             return
-        # Store the pass's raw samples (the sampler's next state is evaluated with
-        # them), except the weight channel (the literal 1) and, for a box filter,
-        # the positions; then one kernel per pass sums each pixel's samples in order.
+        if not self.box:
+            self._pending = self._filtered(samples, values, group)
+            return
+        # Store the pass's raw values (the sampler's next state is evaluated with
+        # them), except the weight channel (the literal 1); then one kernel per
+        # pass sums each pixel's samples in order.
         ones = [_is_one(v) for v in values]
         stored = [v for v, one in zip(values, ones) if not one]
-        position = None if self.box else mi.Point2f(samples.position)
-        dr.eval(stored, position)
+        dr.eval(stored)
 
-        def sample(lane: Any, active: Any = True) -> tuple[Any, list[Any]]:
-            """(finite, channels) of stored lane(s), non-finite samples zeroed."""
-            raw = iter([dr.gather(mi.Float, v, lane, active) for v in stored])
+        def own(lane: Any) -> list[Any]:  # the channels, non-finite samples zeroed; the flag
+            raw = iter([dr.gather(mi.Float, v, lane) for v in stored])
             channels = [mi.Float(1.0) if one else next(raw) for one in ones]
             finite = _finite(channels)
-            return finite, [dr.select(finite, c, 0.0) for c in channels]
-
-        def own(lane: Any) -> list[Any]:  # box: the channels; always: the non-finite flag
-            finite, channels = sample(lane)
-            return (channels if self.box else []) + [dr.select(finite, 0.0, 1.0)]
+            return [dr.select(finite, c, 0.0) for c in channels] + [dr.select(finite, 0.0, 1.0)]
 
         sums = sequential_block_sums(self.grid[0] * self.grid[1], group, own,
-                                     (self.channels if self.box else 0) + 1, evaluate=False)
-        bad_pixels = mi.UInt32(sums[-1])
-        if self.box:
-            terms: list[Any] = sums[:-1]
-        else:
-            assert position is not None
-            terms = self._gathered(sample, position, group)
-        self._pending = (terms, bad_pixels, None)  # summed by the kernel that adds them in
+                                     self.channels + 1, evaluate=False)
+        self._pending = (sums[:-1], mi.UInt32(sums[-1]), None)  # summed as they are added
 
     def commit(self) -> None:
         """Add the pass into the sums in place: one add per element and pass (so
@@ -199,12 +191,32 @@ class FilmAccumulator:
         return self.film.develop()
 
     # -- filtered splatting -------------------------------------------------------
-    def _gathered(self, sample: Callable[[Any, Any], tuple[Any, list[Any]]],
-                  position: mi.Point2f, group: int) -> list[mi.Float64]:
-        """Per block pixel: the filter-weighted sums of the samples of the pixels
-        within the filter's reach, gathered (each target sums its sources in a
-        fixed order: offsets, then samples), so no two lanes ever write one value.
-        ``sample(lane, active)`` gives a stored sample's channels."""
+    def _filtered(self, samples: CameraSamples, values: list[mi.Float],
+                  group: int) -> tuple[list[Any], Any, None]:
+        """A pass for a filter wider than a box: per block pixel, the
+        filter-weighted sums of the samples of the pixels within the filter's
+        reach, gathered (each target sums its sources in a fixed order: offsets,
+        then samples), so no two lanes ever write one value; and per grid pixel,
+        its non-finite samples.
+
+        The pass's samples are stored interleaved (:class:`~.packed.Packed`), a
+        non-finite one with its channels zeroed and its x position NaN, which
+        the gather reads as "no weight"."""
+        ones = [_is_one(v) for v in values]
+        finite = _finite(values)
+        position = mi.Point2f(samples.position)
+        columns: list[Any] = [dr.select(finite, v, 0.0) for v, one in zip(values, ones)
+                              if not one]
+        columns += [dr.select(finite, position.x, dr.nan), position.y]
+        packed = Packed.of(columns)
+        dr.eval(packed.arrays)  # with the sampler's next state
+
+        def nonfinite(lane: Any) -> list[Any]:
+            x = packed.gather(lane)[-2]
+            return [dr.select(dr.isnan(x), 1.0, 0.0)]
+
+        bad = sequential_block_sums(self.grid[0] * self.grid[1], group, nonfinite, 1,
+                                    evaluate=False)[0]
         rfilter = self.film.rfilter()
         w, h = self.ext
         gw, gh = self.grid
@@ -222,21 +234,20 @@ class FilmAccumulator:
         def contributions(k: mi.UInt32, totals: list[mi.Float64]) -> list[mi.Float64]:
             out = list(totals)
             for inside, base in sources:
-                lane = base + k
-                pos = dr.gather(mi.Point2f, position, lane, inside)
-                weight = rfilter.eval(centre.x - pos.x) * rfilter.eval(centre.y - pos.y)
-                weight = dr.select(inside, weight, 0.0)
-                _, channels = sample(lane, inside)
-                for c, value in enumerate(channels):
-                    out[c] = out[c] + mi.Float64(value * weight)
+                *stored, x, y = packed.gather(base + k, inside)
+                weight = dr.select(inside & ~dr.isnan(x),
+                                   rfilter.eval(centre.x - x) * rfilter.eval(centre.y - y), 0.0)
+                raw = iter(stored)
+                for c, one in enumerate(ones):
+                    out[c] = out[c] + mi.Float64(weight if one else next(raw) * weight)
             return out
 
         zeros = [dr.zeros(mi.Float64, w * h) for _ in range(self.channels)]
         if group == 1:
-            return contributions(mi.UInt32(0), zeros)
+            return contributions(mi.UInt32(0), zeros), mi.UInt32(bad), None
         state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group,
                                    lambda k, *s: (k + 1, *contributions(k, list(s))))
-        return list(state[1:])
+        return list(state[1:]), mi.UInt32(bad), None
 
 
 class MomentsAccumulator:
