@@ -23,6 +23,7 @@ import sys
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
 
+from .._exit import leave
 from .._gc import collection_held_back
 from ..errors import McrtError
 
@@ -213,9 +214,17 @@ def _mitsuba_log(quiet: bool) -> Iterator[None]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``mcrt`` console script."""
-    process = argv is None  # the console script: this process runs one command
-    argv = sys.argv[1:] if argv is None else list(argv)
+    """Entry point of the ``mcrt`` console script (``argv`` None: this process
+    runs one command and then ends without tearing the interpreter down, see
+    :mod:`mcrt._exit`); ``main(argv)`` runs a command and returns its status."""
+    if argv is not None:
+        return _run(list(argv), process=False)
+    code = _run(sys.argv[1:], process=True)
+    leave(code)
+    return code
+
+
+def _run(argv: list[str], process: bool) -> int:
     command = command_of(argv)
     # A parser with just the one subcommand parses its arguments exactly as the
     # full parser would (same prog, usage and messages).
