@@ -34,6 +34,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
+from .packed import Packed
 from .trace import CameraSamples, film_grid_size
 
 #: Per-pixel sums kept by :class:`FilteredStats`, with their channel counts.
@@ -129,11 +130,14 @@ class FilteredMomentsAccumulator:
         self._pending: tuple | None = None
 
     def add(self, samples: CameraSamples, values: list[Any], group: int) -> None:
+        # Stored interleaved (packet loads); a non-finite sample zeroed, its x NaN.
         rgb = [mi.Float(v) for v in values[:3]]
         finite = dr.isfinite(rgb[0]) & dr.isfinite(rgb[1]) & dr.isfinite(rgb[2])
         position = mi.Point2f(samples.position)
-        dr.eval(rgb, finite, position)
-        sums = self._gathered(rgb, finite, position, group)
+        packed = Packed.of([*(dr.select(finite, v, 0.0) for v in rgb),
+                            dr.select(finite, position.x, dr.nan), position.y])
+        dr.eval(packed.arrays, finite)
+        sums = self._gathered(packed, group)
         good = dr.block_sum(dr.select(finite, mi.UInt32(1), mi.UInt32(0)), group)
         dr.eval(sums, good)
         gw, gh = self.grid
@@ -172,8 +176,7 @@ class FilteredMomentsAccumulator:
         self.count, self.nonfinite, self.sums = (restored.count, restored.nonfinite,
                                                  restored.sums)
 
-    def _gathered(self, rgb: list[mi.Float], finite: mi.Bool, position: mi.Point2f,
-                  group: int) -> list[mi.Float64]:
+    def _gathered(self, packed: Packed, group: int) -> list[mi.Float64]:
         """The 11 float64 sums of :data:`SUMS` per developed pixel (flat)."""
         w, h = self.size
         gw, gh = self.grid
@@ -191,12 +194,10 @@ class FilteredMomentsAccumulator:
         def body(k: Any, *totals: Any) -> tuple[Any, ...]:
             out = list(totals)
             for inside, base in sources:
-                lane = base + k
-                ok = inside & dr.gather(mi.Bool, finite, lane, inside)
-                pos = dr.gather(mi.Point2f, position, lane, ok)
-                weight = mi.Float64(dr.select(ok, rfilter.eval(centre.x - pos.x)
-                                              * rfilter.eval(centre.y - pos.y), 0.0))
-                values = [mi.Float64(dr.gather(mi.Float, v, lane, ok)) for v in rgb]
+                *rgb, x, y = packed.gather(base + k, inside)
+                weight = mi.Float64(dr.select(inside & ~dr.isnan(x), rfilter.eval(centre.x - x)
+                                              * rfilter.eval(centre.y - y), 0.0))
+                values = [mi.Float64(v) for v in rgb]
                 w2 = weight * weight
                 out[0] += weight
                 out[1] += w2
