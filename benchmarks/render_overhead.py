@@ -25,10 +25,14 @@ Start-up: ``python -c "import mcrt"`` and ``mcrt --help`` against
 ``python -c "import mitsuba; mitsuba.set_variant('llvm_ad_rgb')"``, interleaved.
 
 Prints one markdown table: medians, the median of the per-round ratios
-(mcrt / plain) with their interquartile range, the goal and PASS/FAIL per row.
+(mcrt / plain) with their interquartile range, the goal and PASS/FAIL per row;
+then an A/A control per resolution (the plain script against itself, box
+filter, ``independent``, the same rounds): on a shared machine one process
+varies by 10-15% from run to run, and the control shows how far a median
+ratio of that many rounds moves with nothing changed.
 Goals: time <= 1.05x, peak RSS <= 1.5x, start-up <= +0.3 s.
 
-    python benchmarks/render_overhead.py [--rounds 5] [--res 256 1024] [--spp 16]
+    python benchmarks/render_overhead.py [--rounds 9] [--res 256 1024] [--spp 16]
     python benchmarks/render_overhead.py --quick     # smoke run: tiny images, 1 round
 """
 
@@ -179,6 +183,20 @@ def measure_renders(cases: list[Case], spp: int, rounds: int, work: Path, plain:
     return results
 
 
+def measure_control(case: Case, spp: int, rounds: int, work: Path, plain: Path
+                    ) -> tuple[Series, Series]:
+    """The A/A control: the plain script against itself, in the same interleaved
+    rounds; the spread of its ratios is the noise the mcrt rows are read against."""
+    argv = commands(case, spp, work, plain)["plain"]
+    print(f"  {case.name}: A/A control", file=sys.stderr, flush=True)
+    run_process(argv, work, work / "control.log")
+    first, second = Series(), Series()
+    for r in range(rounds):
+        for series in (first, second) if r % 2 == 0 else (second, first):
+            series.runs.append(run_process(argv, work, work / "control.log"))
+    return first, second
+
+
 def measure_startup(rounds: int, work: Path) -> dict[str, list[float]]:
     py = sys.executable
     argvs = {
@@ -208,7 +226,7 @@ def ratio_row(label: str, unit: str, ours: list[float], theirs: list[float], goa
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rounds", type=int, default=5, help="timed rounds (default 5)")
+    parser.add_argument("--rounds", type=int, default=9, help="timed rounds (default 9)")
     parser.add_argument("--res", type=int, nargs="+", default=[256, 1024],
                         help="image resolutions (default 256 1024)")
     parser.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
@@ -242,6 +260,8 @@ def main() -> int:
 
         print(f"measuring {len(cases)} cases x {args.rounds} rounds ...", file=sys.stderr)
         renders = measure_renders(cases, args.spp, args.rounds, work, plain)
+        controls = [(case, *measure_control(case, args.spp, args.rounds, work, plain))
+                    for case in cases if case.filter == "box" and case.sampler == "independent"]
         startup = measure_startup(max(args.rounds, 5), work)
 
     print(f"\n`mcrt render` against a plain Mitsuba script: Cornell box, path tracer, "
@@ -257,6 +277,13 @@ def main() -> int:
                         [r.rss for r in theirs.runs], RSS_GOAL, fmt="{:.0f}"))
         if problem:
             problems.append(f"{case.name}: {problem}")
+
+    print("\n| A/A control: the plain script against itself | ratio (IQR) |")
+    print("|---|---:|")
+    for case, first, second in controls:
+        ratios = [a.wall / b.wall for a, b in zip(first.runs, second.runs)]
+        q1, q3 = quartiles(ratios)
+        print(f"| {case.name}: time | {statistics.median(ratios):.3f} ({q1:.3f}-{q3:.3f}) |")
 
     base = startup["mitsuba"]
     print("\n| start-up | median | `import mitsuba` + set_variant | difference (IQR) | goal | |")
