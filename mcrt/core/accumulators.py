@@ -15,7 +15,6 @@ lanes) and reduce them per pixel, each pixel's samples in sample order.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -25,6 +24,7 @@ import numpy as np
 
 from ..errors import McrtError
 from .packed import Packed
+from .reach import FilterReach
 from .stats import PixelStats
 from .trace import CameraSamples, film_grid_size
 
@@ -87,9 +87,8 @@ class FilmAccumulator:
         rfilter = film.rfilter()
         self.box = bool(rfilter.is_box_filter()) and self.ext == self.grid \
             and self.origin == self.grid_origin
-        reach = 0 if self.box else math.ceil(rfilter.radius() + 0.5) - 1
-        self.offsets = [(dx, dy) for dy in range(-reach, reach + 1)
-                        for dx in range(-reach, reach + 1)]
+        self.reach = None if self.box else \
+            FilterReach(rfilter, self.ext, self.origin, self.grid, self.grid_origin)
         self.sums = [dr.zeros(mi.Float64, self.ext[0] * self.ext[1]) for _ in range(channels)]
         self.nonfinite = dr.zeros(mi.UInt32, self.grid[0] * self.grid[1])
         self._pending: tuple[list[Any], Any, Any] | None = None
@@ -194,10 +193,10 @@ class FilmAccumulator:
     def _filtered(self, samples: CameraSamples, values: list[mi.Float],
                   group: int) -> tuple[list[Any], Any, None]:
         """A pass for a filter wider than a box: per block pixel, the
-        filter-weighted sums of the samples of the pixels within the filter's
-        reach, gathered (each target sums its sources in a fixed order: offsets,
-        then samples), so no two lanes ever write one value; and per grid pixel,
-        its non-finite samples.
+        filter-weighted sums of the samples within the filter's reach, each
+        target gathering its sources in a fixed order
+        (:class:`~.reach.FilterReach`), so no two lanes ever write one value;
+        and per grid pixel, its non-finite samples.
 
         The pass's samples are stored interleaved (:class:`~.packed.Packed`), a
         non-finite one with its channels zeroed and its x position NaN, which
@@ -217,37 +216,14 @@ class FilmAccumulator:
 
         bad = sequential_block_sums(self.grid[0] * self.grid[1], group, nonfinite, 1,
                                     evaluate=False)[0]
-        rfilter = self.film.rfilter()
-        w, h = self.ext
-        gw, gh = self.grid
-        t = dr.arange(mi.UInt32, w * h)
-        ty = t // w
-        target = mi.Vector2i(mi.Int32(t - ty * w) + self.origin[0],
-                             mi.Int32(ty) + self.origin[1])
-        centre = mi.Point2f(target) + 0.5
-        sources = []
-        for dx, dy in self.offsets:
-            g = target - mi.Vector2i(dx + self.grid_origin[0], dy + self.grid_origin[1])
-            inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
-            sources.append((inside, mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group))
+        assert self.reach is not None
 
-        def contributions(k: mi.UInt32, totals: list[mi.Float64]) -> list[mi.Float64]:
-            out = list(totals)
-            for inside, base in sources:
-                *stored, x, y = packed.gather(base + k, inside)
-                weight = dr.select(inside & ~dr.isnan(x),
-                                   rfilter.eval(centre.x - x) * rfilter.eval(centre.y - y), 0.0)
-                raw = iter(stored)
-                for c, one in enumerate(ones):
-                    out[c] = out[c] + mi.Float64(weight if one else next(raw) * weight)
-            return out
+        def terms(weight: Any, stored: list[Any]) -> list[Any]:
+            raw = iter(stored)
+            return [mi.Float64(weight if one else next(raw) * weight) for one in ones]
 
-        zeros = [dr.zeros(mi.Float64, w * h) for _ in range(self.channels)]
-        if group == 1:
-            return contributions(mi.UInt32(0), zeros), mi.UInt32(bad), None
-        state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group,
-                                   lambda k, *s: (k + 1, *contributions(k, list(s))))
-        return list(state[1:]), mi.UInt32(bad), None
+        sums = self.reach.sums(packed, group, self.channels, terms)
+        return sums, mi.UInt32(bad), None
 
 
 class MomentsAccumulator:

@@ -25,7 +25,6 @@ sums (a gather per target pixel, no atomics: bit-identical across runs).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,6 +34,7 @@ import numpy as np
 
 from ..errors import McrtError
 from .packed import Packed
+from .reach import FilterReach
 from .trace import CameraSamples, film_grid_size
 
 #: Per-pixel sums kept by :class:`FilteredStats`, with their channel counts.
@@ -120,9 +120,8 @@ class FilteredMomentsAccumulator:
         grid = film_grid_size(film)
         self.grid = (int(grid[0]), int(grid[1]))
         self.inset = int(rfilter.border_size()) if film.sample_border() else 0
-        reach = math.ceil(rfilter.radius() + 0.5) - 1
-        self.offsets = [(dx, dy) for dy in range(-reach, reach + 1)
-                        for dx in range(-reach, reach + 1)]
+        self.reach = FilterReach(rfilter, self.size, self.offset, self.grid,
+                                 (self.offset[0] - self.inset, self.offset[1] - self.inset))
         w, h = self.size
         self.sums = {k: np.zeros((h, w, c)) for k, c in SUMS}
         self.count = np.zeros((h, w), np.int64)
@@ -137,7 +136,7 @@ class FilteredMomentsAccumulator:
         packed = Packed.of([*(dr.select(finite, v, 0.0) for v in rgb),
                             dr.select(finite, position.x, dr.nan), position.y])
         dr.eval(packed.arrays, finite)
-        sums = self._gathered(packed, group)
+        sums = self.reach.sums(packed, group, 11, _moment_terms)  # the 11 of SUMS
         good = dr.block_sum(dr.select(finite, mi.UInt32(1), mi.UInt32(0)), group)
         dr.eval(sums, good)
         gw, gh = self.grid
@@ -176,37 +175,11 @@ class FilteredMomentsAccumulator:
         self.count, self.nonfinite, self.sums = (restored.count, restored.nonfinite,
                                                  restored.sums)
 
-    def _gathered(self, packed: Packed, group: int) -> list[mi.Float64]:
-        """The 11 float64 sums of :data:`SUMS` per developed pixel (flat)."""
-        w, h = self.size
-        gw, gh = self.grid
-        t = dr.arange(mi.UInt32, w * h)
-        ty = t // w
-        target = mi.Vector2i(mi.Int32(t - ty * w), mi.Int32(ty))  # crop coordinates
-        centre = mi.Point2f(target + mi.Vector2i(*self.offset)) + 0.5
-        sources = []
-        for dx, dy in self.offsets:
-            g = target + mi.Vector2i(dx + self.inset, dy + self.inset)  # grid pixel
-            inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
-            sources.append((inside, mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group))
-        rfilter = self.rfilter
 
-        def body(k: Any, *totals: Any) -> tuple[Any, ...]:
-            out = list(totals)
-            for inside, base in sources:
-                *rgb, x, y = packed.gather(base + k, inside)
-                weight = mi.Float64(dr.select(inside & ~dr.isnan(x), rfilter.eval(centre.x - x)
-                                              * rfilter.eval(centre.y - y), 0.0))
-                values = [mi.Float64(v) for v in rgb]
-                w2 = weight * weight
-                out[0] += weight
-                out[1] += w2
-                for c, v in enumerate(values):
-                    out[2 + c] += weight * v
-                    out[5 + c] += w2 * v
-                    out[8 + c] += w2 * v * v
-            return (k + 1, *out)
-
-        zeros = [dr.zeros(mi.Float64, w * h) for _ in range(11)]
-        state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group, body)
-        return list(state[1:])
+def _moment_terms(weight: Any, rgb: list[Any]) -> list[mi.Float64]:
+    """One sample's terms of :data:`SUMS`: w, w^2, w L, w^2 L, w^2 L^2."""
+    w = mi.Float64(weight)
+    w2 = w * w
+    values = [mi.Float64(v) for v in rgb]
+    return [w, w2, *(w * v for v in values), *(w2 * v for v in values),
+            *(w2 * v * v for v in values)]
