@@ -2,11 +2,12 @@
 
 When a Python process exits normally, CPython destroys every module and the
 ~10^5 objects that Mitsuba, Dr.Jit and numpy made, and Dr.Jit frees its JIT
-state: about 60 ms of every ``mcrt`` command (measured with a 256^2 render:
-0.071 s from the command's last line to the process's end, against 0.009 s
-with :func:`leave`; median of 6 runs). None of it is needed once a command's
-files are written: they are flushed and ``fsync``'d by then, and Dr.Jit writes
-its kernel cache when it compiles a kernel, not at exit.
+state: 35-75 ms of every ``mcrt`` command, depending on how busy the machine
+is (``benchmarks/process_timeline.py``: the plain script's exit stage, 36 ms,
+against 8 ms for ``mcrt`` with :func:`leave`; 256^2, median of 9 runs). None
+of it is needed once a command's files are written: they are flushed and
+``fsync``'d by then, and Dr.Jit writes its kernel cache when it compiles a
+kernel, not at exit.
 
 :func:`leave` keeps what an exit must do (the ``atexit`` handlers, such as
 logging's flush, and flushing stdout and stderr) and then ends the process

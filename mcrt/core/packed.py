@@ -8,9 +8,10 @@ on the LLVM backend without gather instructions at all. Groups must be a power
 of two wide, so 5 columns are stored as 4 + 1: no padding, the same memory as
 separate arrays.
 
-Measured (scratch, 256^2 pixels x 16 samples, the 25 neighbours of a 5x5
-filter, the weights left out, median of 7): 5 separate arrays 45 ms, one
-group of 5 (not a power of two: no packet loads) 43 ms, 4 + 1 columns 25 ms.
+Measured with ``benchmarks/packed_gather.py`` (256^2 pixels x 16 samples, the
+25 neighbours of a 5x5 filter, the weights left out, median of 7): 5 separate
+arrays 25.9 ms, one group of 5 (not a power of two: no packet loads) 32.2 ms,
+4 + 1 columns 19.9 ms.
 
 Example::
 
