@@ -136,7 +136,7 @@ class FilteredMomentsAccumulator:
         packed = Packed.of([*(dr.select(finite, v, 0.0) for v in rgb),
                             dr.select(finite, position.x, dr.nan), position.y])
         dr.eval(packed.arrays, finite)
-        sums = self.reach.sums(packed, group, 11, _moment_terms)  # the 11 of SUMS
+        sums = self.reach.sums(packed, group, sum(c for _, c in SUMS), _moment_terms)
         good = dr.block_sum(dr.select(finite, mi.UInt32(1), mi.UInt32(0)), group)
         dr.eval(sums, good)
         gw, gh = self.grid
