@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
-from collections import namedtuple
 from pathlib import Path
 
 import drjit as dr
@@ -14,6 +12,7 @@ from conftest import run_cli, small_cornell
 import mcrt.cli.reference_cmd as reference_cmd
 import mcrt.cli.render_cmd as render_cmd
 from mcrt.analysis.reference import get_reference
+from mcrt.core import atomic
 from mcrt.core.job import Interrupted
 from mcrt.core.render import render_film, render_stats
 from mcrt.core.sampling import make_sampler
@@ -185,8 +184,7 @@ def test_same_command_same_exr_bytes_across_runs_and_thread_counts(tmp_path, cap
 
 
 def test_full_disk_is_refused_before_rendering(tmp_path, capsys, monkeypatch):
-    usage = namedtuple("usage", "total used free")
-    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 1000, 1000))
+    monkeypatch.setattr(atomic, "free_bytes", lambda path: 1000)
     traced = record_passes(monkeypatch)
     code, _, stderr = run_cli(capsys, "-q", "render", CORNELL, *SMALL, "-o", str(tmp_path / "x"))
     assert code == 2 and "not enough free space" in stderr and traced == []

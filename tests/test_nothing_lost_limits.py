@@ -11,10 +11,8 @@ from __future__ import annotations
 import errno
 import os
 import resource
-import shutil
 import subprocess
 import sys
-from collections import namedtuple
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +23,6 @@ from mcrt.core import atomic
 from mcrt.core.memory import lane_budget
 
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
-Usage = namedtuple("Usage", "total used free")
 
 
 def _commands(tmp: Path) -> dict[str, list[str]]:
@@ -67,7 +64,7 @@ def _one_line(code: int, err: str) -> str:
 def test_too_little_free_space_is_refused_before_work(tmp_path, cache, capsys, monkeypatch,
                                                       command):
     args = _commands(tmp_path)[command]
-    monkeypatch.setattr(shutil, "disk_usage", lambda path: Usage(10**9, 10**9 - 4096, 4096))
+    monkeypatch.setattr(atomic, "free_bytes", lambda path: 4096)
     code, _, err = run_cli(capsys, "-q", *args)
     assert "not enough free space" in _one_line(code, err)
     out = tmp_path / "out"

@@ -14,27 +14,24 @@ import functools
 import json
 import logging
 import shlex
-import shutil
 from dataclasses import asdict
 from pathlib import Path
 
 from .. import __version__
 from ..cache import cache_dir
-from ..core.atomic import remedy
+from ..core.atomic import check_free_space, remedy
 from ..core.executor import cluster_address
 from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
-from ..core.scene_files import SceneSource, scene_digest
+from ..core.scene_files import scene_digest
 from ..core.trace import film_grid_size
 from ..errors import McrtError
 from ..io import write_exr, write_png
-from ..io.heatmap import write_heatmap
 from ..io.parallel import write_all
 from ..render import adaptive
-from ..render.loaded import FilmPassTask, film_pass, remember_planned
 from ..render.plan import parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
 from ..samplers import ALL_SAMPLERS, PLUGINS
@@ -110,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
     heat_path = stem.with_name(stem.name + "_spp.png")
     check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
-    check_free_space(exr_path.parent, scene)
+    check_output_space(exr_path.parent, scene)
     _check_memory(scene, adaptive_settings)
     cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
     note_first_run()
@@ -196,6 +193,9 @@ def _render_cluster(args: argparse.Namespace, sampler, adaptive: bool) -> str | 
 def _pass_tasks(args: argparse.Namespace, planned, params: dict[str, str],
                 overrides: dict[str, bool], name: str, sampler, spp: int) -> dict:
     """``render_film``'s arguments that make its passes tasks (``--cluster``)."""
+    from ..core.scene_files import SceneSource  # only a distributed render ships its scene
+    from ..render.loaded import FilmPassTask, film_pass, remember_planned
+
     wrap = "multisample" if getattr(args, "multisample", False) else None
     source = SceneSource.of(args.scene, params)
     remember_planned(source, params, planned, overrides, wrap)  # for in-process tasks too
@@ -304,6 +304,8 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     """``mcrt render --adaptive``: passes with active-pixel counts, EXR layers for
     RGB, variance, standard error and sample counts, and a PNG heat map of the
     sample counts. Ctrl-C and resume work as for fixed-spp renders."""
+    from ..io.heatmap import write_heatmap
+
     exr_path, png_path, heat_path = paths
     store = CheckpointStore(_resume_paths(exr_path, key), key,
                             _job(args, name, settings.max_spp, exr_path.with_suffix("")))
@@ -382,7 +384,7 @@ def render_key(scene: str, params: dict[str, str], overrides: dict[str, bool], s
                         "settings": settings})
 
 
-def check_free_space(directory: Path, scene) -> None:
+def check_output_space(directory: Path, scene) -> None:
     """Refuse to start when the output directory cannot hold the results.
 
     Needed: the float32 EXR (uncompressed upper bound), the PNG and, for a
@@ -391,8 +393,4 @@ def check_free_space(directory: Path, scene) -> None:
     film = scene.sensors()[0].film()
     width, height = (int(v) for v in film_grid_size(film))
     channels = 5
-    needed = width * height * (channels * 4 + 4 + channels * 8) + (1 << 20)
-    free = shutil.disk_usage(directory).free
-    if free < needed:
-        raise McrtError(f"not enough free space in {directory}: the outputs need about "
-                        f"{needed / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")
+    check_free_space(directory, width * height * (channels * 4 + 4 + channels * 8) + (1 << 20))

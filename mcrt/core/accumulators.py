@@ -16,7 +16,7 @@ lanes) and reduce them per pixel, each pixel's samples in sample order.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import drjit as dr
 import mitsuba as mi
@@ -25,8 +25,10 @@ import numpy as np
 from ..errors import McrtError
 from .packed import Packed
 from .reach import FilterReach
-from .stats import PixelStats
 from .trace import CameraSamples, film_grid_size
+
+if TYPE_CHECKING:
+    from .stats import PixelStats
 
 #: Most samples of one pixel a kernel adds into a box-filtered film as it traces
 #: them. The pixel's samples are neighbouring lanes, which on Dr.Jit's LLVM
@@ -268,6 +270,8 @@ class MomentsAccumulator:
             self._pending = None
 
     def stats(self) -> PixelStats:
+        from .stats import PixelStats  # the reference's type: a film render never needs it
+
         w, h = self.grid
         return PixelStats(
             count=_numpy(self.count, (h, w), np.int64),

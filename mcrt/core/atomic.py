@@ -21,8 +21,6 @@ import contextlib
 import errno
 import os
 import re
-import shutil
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -112,6 +110,21 @@ def _fsync_dir(directory: str) -> None:
         os.close(fd)
 
 
+def _new_temporary(directory: str, name: str) -> str:
+    """Create an empty ``.<name>.<pid>-<random>.tmp`` in ``directory`` (a name no
+    other writer holds) and return its path; ``OSError`` if it cannot be made."""
+    for _ in range(16):
+        candidate = os.path.join(directory, f".{name}.{os.getpid()}-{os.urandom(4).hex()}.tmp")
+        try:
+            # 0o666 & ~umask: the final file gets ordinary permissions (mkstemp's 0o600 would not).
+            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return candidate
+    raise OSError(errno.EEXIST, "could not create a temporary file")  # pragma: no cover
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[str]:
     """Yield a temporary path next to ``path``; move it to ``path`` on success.
@@ -142,21 +155,10 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[str]
                   else f"the directory '{directory}' does not exist")
         raise write_error(path, reason)
 
-    tmp = None
-    for _ in range(16):
-        candidate = os.path.join(directory, f".{name}.{os.getpid()}-{os.urandom(4).hex()}.tmp")
-        try:
-            # 0o666 & ~umask: the final file gets ordinary permissions (mkstemp's 0o600 would not).
-            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            continue
-        except OSError as exc:
-            raise write_error(path, exc) from None
-        os.close(fd)
-        tmp = candidate
-        break
-    if tmp is None:  # pragma: no cover - 16 collisions of a 32-bit random name
-        raise write_error(path, "could not create a temporary file")
+    try:
+        tmp = _new_temporary(directory, name)
+    except OSError as exc:
+        raise write_error(path, exc) from None
 
     try:
         try:
@@ -203,8 +205,7 @@ def ensure_writable_dir(directory: Path) -> Path:
     if not directory.is_dir():
         raise McrtError(f"output directory {directory} is not a directory")
     try:
-        with tempfile.NamedTemporaryFile(dir=directory, prefix=".mcrt-write-test-"):
-            pass
+        os.unlink(_new_temporary(os.fspath(directory), "mcrt-write-test"))
     except OSError as error:
         raise McrtError(f"cannot write to output directory {directory}: {error.strerror}") from None
     return directory
@@ -266,6 +267,17 @@ def remove_stale_temporaries(directory: str | os.PathLike, now: float | None = N
     return removed
 
 
+def free_bytes(path: str | os.PathLike) -> int:
+    """Bytes an unprivileged writer can still use on ``path``'s file system
+    (``shutil.disk_usage(path).free``, without importing shutil's archivers)."""
+    if not hasattr(os, "statvfs"):  # pragma: no cover - not POSIX
+        import shutil
+
+        return shutil.disk_usage(path).free
+    st = os.statvfs(path)
+    return st.f_bavail * st.f_frsize
+
+
 def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the outputs") -> None:
     """Refuse to start when ``directory`` (or its nearest existing parent) has
     less than ``needed`` bytes free: one-line :class:`McrtError`."""
@@ -273,7 +285,7 @@ def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the
     while not path.exists() and path != path.parent:
         path = path.parent
     try:
-        free = shutil.disk_usage(path).free
+        free = free_bytes(path)
     except OSError:
         return  # cannot tell: the writes will report their own failure
     if free < needed:

@@ -17,7 +17,7 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import drjit as dr
 import mitsuba as mi
@@ -37,11 +37,13 @@ from .engine import (
     sampling_integrator,
 )
 from .executor import cluster_status
-from .filtered import FilteredMomentsAccumulator, FilteredStats
 from .job import Checkpoint, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .progress import Progress
-from .stats import PixelStats
+
+if TYPE_CHECKING:  # the statistics' types: imported by render_stats when it runs
+    from .filtered import FilteredMomentsAccumulator, FilteredStats
+    from .stats import PixelStats
 
 
 @dataclass
@@ -351,6 +353,8 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
                                moments_bytes(width * height)))
     accumulator: MomentsAccumulator | FilteredMomentsAccumulator = MomentsAccumulator(film)
     if filtered and not film.rfilter().is_box_filter():
+        from .filtered import FilteredMomentsAccumulator
+
         accumulator = FilteredMomentsAccumulator(film)
     start = time.perf_counter()
     _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)

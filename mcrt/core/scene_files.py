@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -135,6 +134,8 @@ def bundle_scene(scene_path: str | Path, params: dict[str, str] | None = None) -
 def materialize(bundle: SceneBundle, base: str | Path | None = None) -> Path:
     """Write the bundle's files (once per digest) under ``base`` (default: the
     system's temporary folder) and return the path of its scene file."""
+    import tempfile  # here: a render that never ships its scene does not import it
+
     folder = Path(base or tempfile.gettempdir()) / "mcrt-scenes" / bundle.digest
     for name, data in bundle.files:
         target = folder / name
