@@ -15,7 +15,13 @@ Each layout's kernel is compiled and run once, then ``--rounds`` rounds time
 each (in turn, after ``dr.sync_thread``); printed: the median ms and the ratio
 to ``separate``.
 
+A second table times mcrt's own kernel (``FilterReach.sums`` with Mitsuba's
+Gaussian filter and a film's four sums, added into the film as the film adds
+them) by the block of targets one lane gathers for (``--blocks``), and checks
+that every block gives the bits of 1 x 1.
+
     python benchmarks/packed_gather.py [--res 256] [--spp 16] [--rounds 7]
+                                       [--blocks 1x1 2x1 2x2 4x1 3x2]
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 
 from mcrt.core.packed import Packed  # noqa: E402  (needs the variant)
+from mcrt.core.reach import BLOCK, FilterReach  # noqa: E402
 
 OFFSETS = [(dx, dy) for dy in range(-2, 3) for dx in range(-2, 3)]
 
@@ -89,6 +96,7 @@ def main() -> int:
     parser.add_argument("--res", type=int, default=256)
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--blocks", nargs="+", default=["1x1", "2x1", "2x2", "4x1", "3x2"])
     args = parser.parse_args()
     lanes = args.res * args.res * args.spp
     rng = mi.PCG32(lanes)
@@ -112,7 +120,53 @@ def main() -> int:
     for name, series in times.items():
         median = statistics.median(series)
         print(f"| {name} | {1000 * median:.1f} | {median / base:.2f} |")
+    blocks(columns, args)
     return 0
+
+
+def film_sums(columns: list[Any], res: int, spp: int, block: tuple[int, int]) -> list[Any]:
+    """A pass of the Gaussian film's sums (weight, R, G, B) over a res^2 film."""
+    packed = Packed.of(columns)
+    reach = FilterReach(mi.load_dict({"type": "gaussian"}), (res, res), (0, 0), (res, res),
+                        (0, 0), block=block)
+    slots = reach.sums(packed, spp, 4,
+                       lambda w, stored: [mi.Float64(w), *(mi.Float64(v * w) for v in stored)])
+    sums = [dr.zeros(mi.Float64, res * res) for _ in range(4)]
+    for slot in slots:
+        for total, value in zip(sums, slot.values):
+            dr.scatter_add(total, value, slot.index, slot.valid, mode=dr.ReduceMode.NoConflicts)
+    dr.eval(sums)
+    return sums
+
+
+def blocks(columns: list[Any], args: argparse.Namespace) -> None:
+    """Time FilterReach by block shape (positions: each lane's own pixel)."""
+    lane = dr.arange(mi.UInt32, args.res * args.res * args.spp) // args.spp
+    columns = columns[:3] + [mi.Float(lane % args.res) + columns[3],
+                             mi.Float(lane // args.res) + columns[4]]
+    shapes = [tuple(int(v) for v in b.split("x")) for b in args.blocks]
+    first = [dr.ravel(s).numpy() for s in film_sums(columns, args.res, args.spp, (1, 1))]
+    same = {}
+    for shape in shapes:  # compile, and compare the bits
+        got = [dr.ravel(s).numpy() for s in film_sums(columns, args.res, args.spp, shape)]
+        same[shape] = all((a == b).all() for a, b in zip(got, first))
+    times: dict[tuple[int, ...], list[float]] = {shape: [] for shape in shapes}
+    for _ in range(args.rounds):
+        for shape in shapes:
+            dr.sync_thread()
+            start = time.perf_counter()
+            film_sums(columns, args.res, args.spp, shape)
+            dr.sync_thread()
+            times[shape].append(time.perf_counter() - start)
+    base = statistics.median(times[shapes[0]])
+    print(f"\nFilterReach (Gaussian film, 4 sums), {args.res}^2 pixels x {args.spp} samples, "
+          f"by targets per lane, median of {args.rounds} rounds (mcrt: {BLOCK[0]}x{BLOCK[1]}):\n")
+    print(f"| block | ms | ratio to {args.blocks[0]} | bits of 1x1 |")
+    print("|---|---:|---:|---|")
+    for shape, series in times.items():
+        median = statistics.median(series)
+        print(f"| {shape[0]}x{shape[1]} | {1000 * median:.1f} | {median / base:.2f} | "
+              f"{'same' if same[shape] else 'DIFFERENT'} |")
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import McrtError
 from .packed import Packed
-from .reach import FilterReach
+from .reach import FilterReach, TargetSums
 from .trace import CameraSamples, film_grid_size
 
 if TYPE_CHECKING:
@@ -93,7 +93,7 @@ class FilmAccumulator:
             FilterReach(rfilter, self.ext, self.origin, self.grid, self.grid_origin)
         self.sums = [dr.zeros(mi.Float64, self.ext[0] * self.ext[1]) for _ in range(channels)]
         self.nonfinite = dr.zeros(mi.UInt32, self.grid[0] * self.grid[1])
-        self._pending: tuple[list[Any], Any, Any] | None = None
+        self._pending: tuple[list[TargetSums], Any, Any] | None = None
 
     @property
     def fold(self) -> int:
@@ -111,9 +111,10 @@ class FilmAccumulator:
             raise McrtError(f"the film expects {self.channels} channels, got {len(values)}")
         if group <= self.fold and group & (group - 1) == 0:  # fold in while tracing
             finite = _finite(values)
-            lane = dr.arange(mi.UInt32, self.ext[0] * self.ext[1] * group)
-            self._pending = ([mi.Float64(dr.select(finite, v, 0.0)) for v in values],
-                             dr.select(finite, mi.UInt32(0), mi.UInt32(1)), lane // group)
+            pixel = dr.arange(mi.UInt32, self.ext[0] * self.ext[1] * group) // group
+            self._pending = ([TargetSums(pixel, True, [mi.Float64(dr.select(finite, v, 0.0))
+                                                      for v in values])],
+                             dr.select(finite, mi.UInt32(0), mi.UInt32(1)), pixel)
             return
         if not self.box:
             self._pending = self._filtered(samples, values, group)
@@ -133,7 +134,8 @@ class FilmAccumulator:
 
         sums = sequential_block_sums(self.grid[0] * self.grid[1], group, own,
                                      self.channels + 1, evaluate=False)
-        self._pending = (sums[:-1], mi.UInt32(sums[-1]), None)  # summed as they are added
+        pixel = dr.arange(mi.UInt32, self.grid[0] * self.grid[1])  # the block is the grid
+        self._pending = ([TargetSums(pixel, True, sums[:-1])], mi.UInt32(sums[-1]), None)
 
     def commit(self) -> None:
         """Add the pass into the sums in place: one add per element and pass (so
@@ -142,15 +144,15 @@ class FilmAccumulator:
         their SIMD packet) or that reduces each pixel's stored samples."""
         if self._pending is None:
             return
-        terms, bad, lane_pixel = self._pending
+        slots, bad, lane_pixel = self._pending
         # Folded: each lane's pixel (a box film's block is its pixel grid). Stored:
-        # one term per element, the sums over the block, the counts over the grid.
-        sums_at = lane_pixel if lane_pixel is not None else \
-            dr.arange(mi.UInt32, dr.width(self.sums[0]))
+        # one term per element of the block (a target of each slot, for a filter
+        # wider than a box) and the counts over the grid.
         counts_at = lane_pixel if lane_pixel is not None else \
             dr.arange(mi.UInt32, dr.width(self.nonfinite))
-        for s, t in zip(self.sums, terms):
-            dr.scatter_add(s, t, sums_at, mode=dr.ReduceMode.NoConflicts)
+        for slot in slots:
+            for s, t in zip(self.sums, slot.values):
+                dr.scatter_add(s, t, slot.index, slot.valid, mode=dr.ReduceMode.NoConflicts)
         dr.scatter_add(self.nonfinite, bad, counts_at, mode=dr.ReduceMode.NoConflicts)
         dr.eval(self.sums, self.nonfinite)
         self._pending = None
@@ -193,7 +195,7 @@ class FilmAccumulator:
 
     # -- filtered splatting -------------------------------------------------------
     def _filtered(self, samples: CameraSamples, values: list[mi.Float],
-                  group: int) -> tuple[list[Any], Any, None]:
+                  group: int) -> tuple[list[TargetSums], Any, None]:
         """A pass for a filter wider than a box: per block pixel, the
         filter-weighted sums of the samples within the filter's reach, each
         target gathering its sources in a fixed order

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import McrtError
 from .packed import Packed
-from .reach import FilterReach
+from .reach import FilterReach, dense
 from .trace import CameraSamples, film_grid_size
 
 #: Per-pixel sums kept by :class:`FilteredStats`, with their channel counts.
@@ -136,12 +136,13 @@ class FilteredMomentsAccumulator:
         packed = Packed.of([*(dr.select(finite, v, 0.0) for v in rgb),
                             dr.select(finite, position.x, dr.nan), position.y])
         dr.eval(packed.arrays, finite)
-        sums = self.reach.sums(packed, group, sum(c for _, c in SUMS), _moment_terms)
+        w, h = self.size
+        sums = dense(self.reach.sums(packed, group, sum(c for _, c in SUMS), _moment_terms),
+                     w * h)
         good = dr.block_sum(dr.select(finite, mi.UInt32(1), mi.UInt32(0)), group)
         dr.eval(sums, good)
         gw, gh = self.grid
         good_grid = np.array(good, np.int64).reshape(gh, gw)
-        w, h = self.size
         i = self.inset
         good_crop = good_grid[i:i + h, i:i + w]
         self._pending = (sums, good_crop, group - good_crop)

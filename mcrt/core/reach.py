@@ -5,10 +5,17 @@ A film with a filter wider than a box develops pixel ``p`` from every sample
 ``p``'s centre, weighted by ``f(p_x + 1/2 - x_s) f(p_y + 1/2 - y_s)``. Both
 filtered sinks of the pass engine (the film, :mod:`mcrt.core.accumulators`,
 and the filtered statistics, :mod:`mcrt.core.filtered`) form their sums
-*per target pixel*, gathering its sources in one fixed order (the offsets,
-then each source pixel's samples), so no two lanes ever write one value and
-the result does not depend on thread scheduling. :class:`FilterReach` is that
-neighbourhood and its weights, in one place.
+*per target pixel*, gathering its sources in one fixed order (each source
+pixel's sample ``k``, then the offsets), so no two lanes ever write one value
+and the result does not depend on thread scheduling. :class:`FilterReach` is
+that neighbourhood and its weights, in one place.
+
+One lane gathers for a block of :data:`BLOCK` neighbouring targets at once:
+the block's sources overlap, so each source sample is loaded once for all the
+block's targets it reaches, and each of its 1D filter values is evaluated once
+per target column (or row) instead of once per target. Every target still adds
+its own terms in its own fixed order, with the same arithmetic, so the sums do
+not depend on the block's shape (``benchmarks/packed_gather.py`` measures it).
 
 A pass's samples come as a :class:`~mcrt.core.packed.Packed` whose last two
 columns are the film position x, y; a non-finite sample is stored with its x
@@ -18,12 +25,26 @@ NaN and its channels zeroed, and gets no weight.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
 import mitsuba as mi
 
 from .packed import Packed
+
+#: Targets (columns, rows) one lane gathers for.
+BLOCK = (2, 2)
+
+
+@dataclass
+class TargetSums:
+    """The sums of one block slot: ``values[c]`` belongs to target pixel
+    ``index`` (row-major over the targets), where ``valid``."""
+
+    index: Any
+    valid: Any
+    values: list[Any]
 
 
 class FilterReach:
@@ -33,52 +54,84 @@ class FilterReach:
 
     def __init__(self, rfilter: mi.ReconstructionFilter, size: tuple[int, int],
                  origin: tuple[int, int], grid: tuple[int, int],
-                 grid_origin: tuple[int, int]) -> None:
+                 grid_origin: tuple[int, int], block: tuple[int, int] = BLOCK) -> None:
         self.rfilter = rfilter
         self.size, self.origin, self.grid, self.grid_origin = size, origin, grid, grid_origin
-        reach = math.ceil(rfilter.radius() + 0.5) - 1  # a sample lies in [0, 1) of its pixel
-        self.offsets = [(dx, dy) for dy in range(-reach, reach + 1)
-                        for dx in range(-reach, reach + 1)]
+        self.reach = math.ceil(rfilter.radius() + 0.5) - 1  # a sample lies in [0, 1) of its pixel
+        self.block = block
 
-    def _sources(self, group: int) -> tuple[mi.Point2f, list[tuple[Any, Any]]]:
-        """Each target's centre, and per offset: (inside the grid, the first
-        lane of the source pixel's samples)."""
-        w, _ = self.size
-        gw, gh = self.grid
-        t = dr.arange(mi.UInt32, w * self.size[1])
-        ty = t // w
-        target = mi.Vector2i(mi.Int32(t - ty * w) + self.origin[0],
-                             mi.Int32(ty) + self.origin[1])
-        sources = []
-        for dx, dy in self.offsets:
-            g = target - mi.Vector2i(dx + self.grid_origin[0], dy + self.grid_origin[1])
-            inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
-            sources.append((inside, mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group))
-        return mi.Point2f(target) + 0.5, sources
+    @property
+    def offsets(self) -> list[tuple[int, int]]:
+        """(dx, dy): the source ``target - (dx, dy)`` of each term, in the order a
+        target adds them (dy, then dx, ascending)."""
+        r = self.reach
+        return [(dx, dy) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
 
     def sums(self, packed: Packed, group: int, outputs: int,
-             terms: Any) -> list[mi.Float64]:
+             terms: Any) -> list[TargetSums]:
         """Per target pixel, the float64 sums of ``terms(weight, values)`` (a
         list of ``outputs`` values) over every sample in reach, in a fixed
         order: each source pixel's sample ``k`` (k = 0 .. group - 1), offset by
-        offset. ``weight`` is the sample's filter weight for the target (0
-        outside the grid and for a non-finite sample), ``values`` its stored
-        columns but the position."""
-        w, h = self.size
-        centre, sources = self._sources(group)  # the same in every iteration
+        offset (:attr:`offsets`). ``weight`` is the sample's filter weight for
+        the target (0 outside the grid and for a non-finite sample), ``values``
+        its stored columns but the position. One :class:`TargetSums` per slot
+        of the block, each lane's block of targets in turn."""
+        (w, h), (bw, bh), r = self.size, self.block, self.reach
+        gw, gh = self.grid
+        cols, rows = -(-w // bw), -(-h // bh)
+        lane = dr.arange(mi.UInt32, cols * rows)
+        by = lane // cols
+        first = mi.Vector2i(mi.Int32(lane - by * cols) * bw, mi.Int32(by) * bh)  # block's target
+        slots = [(i, j) for j in range(bh) for i in range(bw)]
+        index, valid = [], []
+        for i, j in slots:
+            index.append(mi.UInt32((first.y + j) * w + first.x + i))
+            valid.append((first.x + i < w) & (first.y + j < h))
+        centre = mi.Point2f(first + mi.Vector2i(self.origin)) + 0.5  # of slot (0, 0)
+        # Sources by (sx, sy) relative to the block's first target, in the order every
+        # target adds them: source = target - offset, offsets ascending (dy, then dx).
+        sources = []
+        for sy in range(bh - 1 + r, -r - 1, -1):
+            for sx in range(bw - 1 + r, -r - 1, -1):
+                g = first + mi.Vector2i(sx + self.origin[0] - self.grid_origin[0],
+                                        sy + self.origin[1] - self.grid_origin[1])
+                inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
+                near = [s for s, (i, j) in enumerate(slots)
+                        if abs(sx - i) <= r and abs(sy - j) <= r]
+                sources.append((sx, sy, inside,
+                                mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group, near))
 
         def body(k: Any, *totals: Any) -> tuple[Any, ...]:
             out = list(totals)
-            for inside, base in sources:
+            for sx, sy, inside, base, near in sources:
                 *values, x, y = packed.gather(base + k, inside)
-                weight = dr.select(inside & ~dr.isnan(x), self.rfilter.eval(centre.x - x)
-                                   * self.rfilter.eval(centre.y - y), 0.0)
-                for c, term in enumerate(terms(weight, values)):
-                    out[c] = out[c] + term
+                use = inside & ~dr.isnan(x)
+                fx = {i: self.rfilter.eval(centre.x + i - x)
+                      for i in sorted({slots[s][0] for s in near})}
+                fy = {j: self.rfilter.eval(centre.y + j - y)
+                      for j in sorted({slots[s][1] for s in near})}
+                for s in near:
+                    i, j = slots[s]
+                    weight = dr.select(use, fx[i] * fy[j], 0.0)
+                    for c, term in enumerate(terms(weight, values)):
+                        out[s * outputs + c] = out[s * outputs + c] + term
             return (k + 1, *out)
 
-        zeros = [dr.zeros(mi.Float64, w * h) for _ in range(outputs)]
+        zeros = [dr.zeros(mi.Float64, cols * rows) for _ in range(len(slots) * outputs)]
         if group == 1:
-            return list(body(mi.UInt32(0), *zeros)[1:])
-        state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group, body)
-        return list(state[1:])
+            totals = list(body(mi.UInt32(0), *zeros)[1:])
+        else:
+            state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group, body)
+            totals = list(state[1:])
+        return [TargetSums(index[s], valid[s], totals[s * outputs:(s + 1) * outputs])
+                for s in range(len(slots))]
+
+
+def dense(slots: list[TargetSums], size: int) -> list[mi.Float64]:
+    """The slots' sums as one array per output over ``size`` targets (each
+    target written once, by its own lane)."""
+    arrays = [dr.zeros(mi.Float64, size) for _ in slots[0].values]
+    for slot in slots:
+        for array, value in zip(arrays, slot.values):
+            dr.scatter(array, value, slot.index, slot.valid)
+    return arrays
