@@ -17,7 +17,9 @@ each stage over the rounds:
 
 The mcrt process is the console script's ``main()`` with three of
 ``mcrt.cli.render_cmd``'s functions wrapped to note the time (nothing else
-changes). Box filter, ``--sampler`` as given.
+changes: the command's modules are imported as the console script imports them,
+with the cyclic collector held back and then frozen). Box filter, ``--sampler``
+as given.
 
     python benchmarks/process_timeline.py [--rounds 7] [--res 256] [--spp 16] [--sampler S]
 """
@@ -61,8 +63,11 @@ def plain_child(scene: str, res: int, spp: int, sampler: str, out: str) -> None:
 
 def mcrt_child(scene: str, res: int, spp: int, sampler: str, out: str) -> None:
     marks = {"start": time.time()}
-    import mcrt.cli.render_cmd as command
+    from mcrt._gc import collection_held_back
     from mcrt.cli import main
+
+    with collection_held_back(freeze=True):  # as the console script imports its command
+        import mcrt.cli.render_cmd as command
 
     marks["imports"] = time.time()
 
