@@ -60,22 +60,16 @@ class FilterReach:
         self.reach = math.ceil(rfilter.radius() + 0.5) - 1  # a sample lies in [0, 1) of its pixel
         self.block = block
 
-    @property
-    def offsets(self) -> list[tuple[int, int]]:
-        """(dx, dy): the source ``target - (dx, dy)`` of each term, in the order a
-        target adds them (dy, then dx, ascending)."""
-        r = self.reach
-        return [(dx, dy) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
-
     def sums(self, packed: Packed, group: int, outputs: int,
              terms: Any) -> list[TargetSums]:
         """Per target pixel, the float64 sums of ``terms(weight, values)`` (a
         list of ``outputs`` values) over every sample in reach, in a fixed
         order: each source pixel's sample ``k`` (k = 0 .. group - 1), offset by
-        offset (:attr:`offsets`). ``weight`` is the sample's filter weight for
-        the target (0 outside the grid and for a non-finite sample), ``values``
-        its stored columns but the position. One :class:`TargetSums` per slot
-        of the block, each lane's block of targets in turn."""
+        offset (source ``target - (dx, dy)``, dy then dx ascending). ``weight``
+        is the sample's filter weight for the target (0 outside the grid and for
+        a non-finite sample), ``values`` its stored columns but the position.
+        One :class:`TargetSums` per slot of the block, each lane's block of
+        targets in turn."""
         (w, h), (bw, bh), r = self.size, self.block, self.reach
         gw, gh = self.grid
         cols, rows = -(-w // bw), -(-h // bh)
