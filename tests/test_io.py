@@ -81,22 +81,6 @@ def test_exr_round_trip_is_bit_exact(tmp_path, layers):
     assert type(meta["exposure"]) is float and type(meta["spp"]) is int
 
 
-def test_exr_bytes_do_not_depend_on_openexr_threads(tmp_path, monkeypatch):
-    """write_exr compresses on Dr.Jit's thread count; the file is the same bytes
-    as one compressed on the calling thread alone (an image of several line
-    blocks, so threads really split the work)."""
-    import drjit as dr
-
-    image = np.random.default_rng(3).random((97, 61, 3)).astype(np.float32)
-    files = {}
-    for threads in (1, 3):
-        monkeypatch.setattr(dr, "thread_count", lambda threads=threads: threads)
-        write_exr(tmp_path / f"t{threads}.exr", {"rgb": image}, {"spp": 4})
-        assert OpenEXR.global_thread_count() == threads
-        files[threads] = (tmp_path / f"t{threads}.exr").read_bytes()
-    assert files[1] == files[3]
-
-
 def test_exr_channel_names_and_float32_storage(tmp_path, layers):
     path = tmp_path / "image.exr"
     write_exr(str(path), layers)

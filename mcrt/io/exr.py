@@ -51,7 +51,6 @@ OpenEXR bindings give them.
 from __future__ import annotations
 
 import os
-import sys
 from collections.abc import Mapping
 
 import numpy as np
@@ -184,7 +183,6 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
     for key, value in (metadata or {}).items():
         header[key] = _header_value(key, value)
 
-    _use_threads(OpenEXR)
     exr = OpenEXR.File(header, planes)
     with atomic_path(path) as tmp:
         try:
@@ -192,17 +190,6 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
         except RuntimeError as exc:  # the bindings report I/O failures this way
             raise write_error(path, str(exc).splitlines()[0] if str(exc) else
                               "the OpenEXR library failed to write the file") from exc
-
-
-def _use_threads(openexr) -> None:
-    """Let OpenEXR compress its line blocks on as many threads as Dr.Jit renders
-    with (all cores unless a cluster worker was given fewer), not on the calling
-    thread alone (its default): 1.4x faster at 1024^2 on two cores. The bytes
-    written do not depend on the thread count (``tests/test_exr.py``)."""
-    drjit = sys.modules.get("drjit")
-    threads = drjit.thread_count() if drjit is not None else (os.cpu_count() or 1)
-    if openexr.global_thread_count() != threads:
-        openexr.set_global_thread_count(max(1, threads))
 
 
 def _group_channels(channels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
