@@ -14,8 +14,9 @@ Two measurements, side by side in one run:
    (pixels) of each sampler's film dimension, and by a *reference* Owen scrambling of
    the same Sobol' (0,2)-sequence computed here in numpy (every node of the scrambling
    tree flips with its own independent coin, by a 64-bit hash: nested uniform
-   scrambling with no hash shortcuts). If ``sobol`` matched that reference but not
-   ``multijitter``, the gap is the Owen-scrambled net's, not mcrt's implementation.
+   scrambling with no hash shortcuts), and by Matousek's random linear scrambling of it.
+   If ``sobol`` matched those references but not ``multijitter``, the gap is the
+   scrambled net's, not mcrt's implementation.
 
     python benchmarks/edge_variance.py [--seeds 12] [--sets 1024]     # ~2 min
 """
@@ -67,11 +68,21 @@ def _splitmix64(x: np.ndarray) -> np.ndarray:
     return x ^ (x >> np.uint64(31))
 
 
-def _reverse32(v: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(v)
-    for bit in range(32):
-        out |= ((v >> np.uint64(bit)) & np.uint64(1)) << np.uint64(31 - bit)
-    return out
+def _sobol_fractions(n: int) -> list[np.ndarray]:
+    """The first ``n`` points of Sobol' dimensions 0 and 1 as 32-bit fractions (bit 31 is
+    the first binary digit), straight from their direction numbers: ``v_k = 2^-k`` (van der
+    Corput) and ``m_k = 2 m_{k-1} xor m_{k-1}``, ``m_1 = 1`` (Joe & Kuo's dimension 2), with
+    no shortcut shared with ``mcrt/samplers/_sobol.py``."""
+    index = np.arange(n, dtype=np.uint64)
+    coords = []
+    for dim in (0, 1):
+        value, v = np.zeros(n, dtype=np.uint64), 1 << 31
+        for bit in range(32):
+            value ^= np.where((index >> np.uint64(bit)) & np.uint64(1) != 0, np.uint64(v),
+                              np.uint64(0))
+            v = v >> 1 if dim == 0 else v ^ (v >> 1)
+        coords.append(value)
+    return coords
 
 
 def _owen(value: np.ndarray, seed: np.ndarray, digits: int = 24) -> np.ndarray:
@@ -86,24 +97,44 @@ def _owen(value: np.ndarray, seed: np.ndarray, digits: int = 24) -> np.ndarray:
     return out
 
 
-def reference_owen_sobol(n: int, sets: int, seed: int = 1) -> np.ndarray:
-    """``sets`` independently Owen-scrambled copies of the first ``n`` points of the
-    Sobol' (0,2)-sequence (dimensions 0 and 1), shape ``(sets, n, 2)``."""
-    index = np.arange(n, dtype=np.uint64)
-    pascal = index.copy()  # Sobol' dimension 1: the Pascal matrix mod 2 (see samplers/_sobol)
-    for step, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F),
-                       (8, 0x00FF00FF), (16, 0x0000FFFF)):
-        pascal ^= (pascal >> np.uint64(step)) & np.uint64(mask)
-    keys = np.random.default_rng(seed).integers(0, 2**63, size=(sets, 2, 1), dtype=np.int64)
-    keys = keys.astype(np.uint64)
-    coords = [_owen(np.broadcast_to(_reverse32(v), (sets, n)).copy(), keys[:, d])
-              for d, v in enumerate((index, pascal))]
+def _linear(value: np.ndarray, rng: np.random.Generator, digits: int = 24) -> np.ndarray:
+    """Matousek's random linear scrambling: the first ``digits`` digits times a random
+    lower-triangular unit-diagonal matrix over GF(2), plus a random digital shift, one
+    matrix and shift per row (point set)."""
+    sets, n = value.shape
+    bits = np.stack([(value >> np.uint64(31 - k)) & np.uint64(1) for k in range(digits)],
+                    axis=1).astype(np.int64)                                  # (sets, digits, n)
+    matrix = np.tril(rng.integers(0, 2, (sets, digits, digits)), -1) + np.eye(digits, dtype=int)
+    shift = rng.integers(0, 2, (sets, digits, 1))
+    scrambled = (np.einsum("sij,sjn->sin", matrix, bits) + shift) % 2
+    out = np.zeros_like(value)
+    for k in range(digits):
+        out |= scrambled[:, k].astype(np.uint64) << np.uint64(31 - k)
+    return out
+
+
+def reference_sobol(n: int, sets: int, scrambling: str, seed: int = 1) -> np.ndarray:
+    """``sets`` independently scrambled copies (``"owen"`` or ``"linear"``) of the first
+    ``n`` points of the Sobol' (0,2)-sequence, shape ``(sets, n, 2)``."""
+    rng = np.random.default_rng(seed)
+    coords = []
+    for value in _sobol_fractions(n):
+        rows = np.broadcast_to(value, (sets, n)).copy()
+        if scrambling == "owen":
+            keys = rng.integers(0, 2**63, size=(sets, 1), dtype=np.int64).astype(np.uint64)
+            coords.append(_owen(rows, keys))
+        else:
+            coords.append(_linear(rows, rng))
     return np.stack([(c >> np.uint64(8)).astype(np.float64) / 2**24 for c in coords], -1)
+
+
+#: The reference scramblings of the same Sobol' points, by column label.
+REFERENCES = {"reference Owen": "owen", "reference linear": "linear"}
 
 
 def edges(sets: int, counts: tuple[int, ...]) -> None:
     families = {"Heaviside": heaviside_family(1024), "Gaussian": gaussian_family(256)}
-    names = (*SAMPLERS, "reference Owen")
+    names = (*SAMPLERS, *REFERENCES)
     print(f"\nOne pixel's film dimension, {sets} point sets x UTK's random integrands "
           f"(1024 Heaviside edges, 256 Gaussians): MSE (ratio to multijitter)\n")
     print("| integrands | N | " + " | ".join(f"`{s}`" if s in SAMPLERS else s
@@ -113,8 +144,8 @@ def edges(sets: int, counts: tuple[int, ...]) -> None:
         for n in counts:
             mse = {}
             for name in names:
-                if name == "reference Owen":
-                    points = reference_owen_sobol(n, sets)
+                if name in REFERENCES:
+                    points = reference_sobol(n, sets, REFERENCES[name])
                 else:
                     params = {"width": 64} if name == "zsobol" else {}
                     points = point_sets(name, range(sets), n, **params)
