@@ -14,9 +14,14 @@ Two measurements, side by side in one run:
    (pixels) of each sampler's film dimension, and by a *reference* Owen scrambling of
    the same Sobol' (0,2)-sequence computed here in numpy (every node of the scrambling
    tree flips with its own independent coin, by a 64-bit hash: nested uniform
-   scrambling with no hash shortcuts), and by Matousek's random linear scrambling of it.
-   If ``sobol`` matched those references but not ``multijitter``, the gap is the
-   scrambled net's, not mcrt's implementation.
+   scrambling with no hash shortcuts), and by Matousek's random linear scrambling of it;
+   and by the same reference Owen scrambling of a *different* (0,m,2)-net, Hammersley's
+   ``(i / N, radical inverse of i)``. If ``sobol`` matched those references but not
+   ``multijitter``, the gap is the scrambled net's, not mcrt's implementation; if the
+   Hammersley column matched too, it is every scrambled (0,m,2)-net's (Owen's variance
+   formula: a scrambled net's variance depends on the net only through how many pairs of
+   its points share each elementary interval, and the (0,m,2) property fixes those counts;
+   docs/samplers.md).
 
     python benchmarks/edge_variance.py [--seeds 12] [--sets 1024]     # ~2 min
 """
@@ -113,14 +118,25 @@ def _linear(value: np.ndarray, rng: np.random.Generator, digits: int = 24) -> np
     return out
 
 
+def _hammersley_fractions(n: int) -> list[np.ndarray]:
+    """Hammersley's ``n = 2^m`` points ``(i / n, radical inverse of i)`` as 32-bit fractions:
+    a (0,m,2)-net with other generator matrices (reversal, identity) than Sobol's."""
+    if n & (n - 1):
+        raise ValueError(f"the Hammersley net needs a power of two, got {n}")
+    index = np.arange(n, dtype=np.uint64)
+    return [index << np.uint64(32 - (n.bit_length() - 1)), _sobol_fractions(n)[0]]
+
+
 def reference_sobol(n: int, sets: int, scrambling: str, seed: int = 1) -> np.ndarray:
-    """``sets`` independently scrambled copies (``"owen"`` or ``"linear"``) of the first
-    ``n`` points of the Sobol' (0,2)-sequence, shape ``(sets, n, 2)``."""
+    """``sets`` independently scrambled copies (``"owen"``, ``"linear"``, or
+    ``"owen hammersley"``: Owen's scrambling of the Hammersley net) of the first ``n``
+    points of the Sobol' (0,2)-sequence, shape ``(sets, n, 2)``."""
     rng = np.random.default_rng(seed)
     coords = []
-    for value in _sobol_fractions(n):
+    net = _hammersley_fractions(n) if scrambling == "owen hammersley" else _sobol_fractions(n)
+    for value in net:
         rows = np.broadcast_to(value, (sets, n)).copy()
-        if scrambling == "owen":
+        if scrambling.startswith("owen"):
             keys = rng.integers(0, 2**63, size=(sets, 1), dtype=np.int64).astype(np.uint64)
             coords.append(_owen(rows, keys))
         else:
@@ -129,7 +145,8 @@ def reference_sobol(n: int, sets: int, scrambling: str, seed: int = 1) -> np.nda
 
 
 #: The reference scramblings of the same Sobol' points, by column label.
-REFERENCES = {"reference Owen": "owen", "reference linear": "linear"}
+REFERENCES = {"reference Owen": "owen", "reference linear": "linear",
+              "Owen-scrambled Hammersley": "owen hammersley"}
 
 
 def edges(sets: int, counts: tuple[int, ...]) -> None:
