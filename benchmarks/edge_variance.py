@@ -23,7 +23,7 @@ Two measurements, side by side in one run:
    its points share each elementary interval, and the (0,m,2) property fixes those counts;
    docs/samplers.md).
 
-    python benchmarks/edge_variance.py [--seeds 12] [--sets 1024]     # ~2 min
+    python benchmarks/edge_variance.py [--seeds 12] [--sets 1024]     # ~2.5 min
 """
 
 from __future__ import annotations
@@ -127,16 +127,16 @@ def _hammersley_fractions(n: int) -> list[np.ndarray]:
     return [index << np.uint64(32 - (n.bit_length() - 1)), _sobol_fractions(n)[0]]
 
 
-def reference_sobol(n: int, sets: int, scrambling: str, seed: int = 1) -> np.ndarray:
-    """``sets`` independently scrambled copies (``"owen"``, ``"linear"``, or
-    ``"owen hammersley"``: Owen's scrambling of the Hammersley net) of the first ``n``
-    points of the Sobol' (0,2)-sequence, shape ``(sets, n, 2)``."""
+def reference_points(n: int, sets: int, net: str, scrambling: str,
+                     seed: int = 1) -> np.ndarray:
+    """``sets`` independently scrambled copies (``scrambling``: ``"owen"`` or ``"linear"``)
+    of the first ``n`` points of ``net`` (``"sobol"``: the (0,2)-sequence; ``"hammersley"``),
+    shape ``(sets, n, 2)``."""
     rng = np.random.default_rng(seed)
     coords = []
-    net = _hammersley_fractions(n) if scrambling == "owen hammersley" else _sobol_fractions(n)
-    for value in net:
+    for value in _hammersley_fractions(n) if net == "hammersley" else _sobol_fractions(n):
         rows = np.broadcast_to(value, (sets, n)).copy()
-        if scrambling.startswith("owen"):
+        if scrambling == "owen":
             keys = rng.integers(0, 2**63, size=(sets, 1), dtype=np.int64).astype(np.uint64)
             coords.append(_owen(rows, keys))
         else:
@@ -144,9 +144,9 @@ def reference_sobol(n: int, sets: int, scrambling: str, seed: int = 1) -> np.nda
     return np.stack([(c >> np.uint64(8)).astype(np.float64) / 2**24 for c in coords], -1)
 
 
-#: The reference scramblings of the same Sobol' points, by column label.
-REFERENCES = {"reference Owen": "owen", "reference linear": "linear",
-              "Owen-scrambled Hammersley": "owen hammersley"}
+#: The reference point sets computed here, by column label: (net, scrambling).
+REFERENCES = {"reference Owen": ("sobol", "owen"), "reference linear": ("sobol", "linear"),
+              "Owen-scrambled Hammersley": ("hammersley", "owen")}
 
 
 def edges(sets: int, counts: tuple[int, ...]) -> None:
@@ -162,7 +162,7 @@ def edges(sets: int, counts: tuple[int, ...]) -> None:
             mse = {}
             for name in names:
                 if name in REFERENCES:
-                    points = reference_sobol(n, sets, REFERENCES[name])
+                    points = reference_points(n, sets, *REFERENCES[name])
                 else:
                     params = {"width": 64} if name == "zsobol" else {}
                     points = point_sets(name, range(sets), n, **params)
