@@ -70,6 +70,7 @@ SHIPPED: dict[str, dict[str, str]] = {
     "foreign/aov.xml": {}, "foreign/env_lit.xml": {}, "foreign/medium.xml": {},
     "foreign/medium_in_dielectric.xml": {"res": "12"}, "foreign/mesh_light.xml": {"res": "12"},
     "foreign/moment.xml": {}, "foreign/old_format.xml": {"res": "12"}, "foreign/sphere.xml": {},
+    "foreign/irradiance_meter.xml": {},
     **{f"hard/{n}.xml": SMALL for n in ("degenerate", "dynamic_range", "fireflies", "grazing")},
     "hard/furnace.xml": {"width": "64", "height": "1"},
     "hard/sky.xml": {"width": "64", "height": "1"},
@@ -240,6 +241,9 @@ EFFECTS: dict[str, set[str]] = {
     "filters/slanted_edge.xml": {"aa"},
     # one sphere under a constant environment: path/aov/moment find no second bounce
     "foreign/aov.xml": {"aa"}, "foreign/moment.xml": {"aa"}, "foreign/sphere.xml": {"aa"},
+    # an irradiance meter on a sphere under a rectangle light, path max_depth 3 (the floor
+    # reflects light onto the sphere)
+    "foreign/irradiance_meter.xml": {"aa", "soft_shadows", "indirect"},
     # volpath through a scattering medium: indirect light in the medium
     "foreign/medium.xml": {"aa", "indirect"},
     # path max_depth 3, floor and panels under the sky and an emitting panel D

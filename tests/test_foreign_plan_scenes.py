@@ -17,10 +17,11 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, run_cli
 
 from mcrt.core.render import render_film
 from mcrt.errors import McrtError
+from mcrt.io import read_exr
 from mcrt.render.plan import plan_scene
 from mcrt.render.plan.edits import SPOT_BEAM_DEG
 
@@ -29,6 +30,7 @@ OLD = FOREIGN / "old_format.xml"
 MEDIUM = FOREIGN / "medium_in_dielectric.xml"
 MESH_LIGHT = FOREIGN / "mesh_light.xml"
 ENV = FOREIGN / "env_lit.xml"
+METER = FOREIGN / "irradiance_meter.xml"
 SEEDS = 4
 
 
@@ -165,6 +167,49 @@ def test_a_medium_inside_a_dielectric_scatters_indirect_light(tmp_path):
 
 def test_a_medium_inside_a_dielectric_renders_as_mi_render_does():
     assert z_score(planned_mean(MEDIUM, spp=8), mitsuba_mean(MEDIUM, spp=8)) < 5
+
+
+def test_a_sensor_attached_to_a_shape_is_rendered_from(capsys, tmp_path):
+    """The scene's only sensor is an irradiance meter inside a shape: mcrt plans and
+    renders it as ``mi.render`` does (a 1x1 film), instead of finding no sensor.
+
+    The meter's variance is high (the light is reached by a cosine-weighted
+    direction), so the means are over 32 seeds: the SE estimate has 31 degrees of
+    freedom, and P(|t_31| > 5) is about 2e-5."""
+    planned = plan_scene(METER, {"spp": "256"})
+    assert planned.plan.on("soft_shadows") and planned.plan.on("indirect")
+    ours = mean_and_se([render_film(planned.scene, spp=256, seed=s).image for s in range(32)])
+    scene = mi.load_file(str(METER))
+    theirs = mean_and_se([np.array(mi.render(scene, spp=256, seed=100 + s)) for s in range(32)])
+    assert ours[0] > 1.0 and z_score(ours, theirs) < 5, (ours, theirs)
+    code, out, err = run_cli(capsys, "-q", "render", str(METER), "--spp", "16",
+                             "--sampler", "sobol", "-o", str(tmp_path / "meter"))
+    assert code == 0, err
+    layers, _ = read_exr(tmp_path / "meter.exr")
+    assert layers["rgb"].shape == (1, 1, 3) and np.all(layers["rgb"] > 0)
+
+
+THIN_LENS = """<sensor type="thinlens">
+    <float name="aperture_radius" value="0.1"/><float name="focus_distance" value="3"/>
+    <transform name="to_world"><lookat origin="0,2,6" target="0,0.5,0" up="0,1,0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/></film>
+</sensor>"""
+
+
+@pytest.mark.parametrize("camera_first", [True, False])
+def test_the_plan_is_made_for_the_sensor_mitsuba_renders_from(tmp_path, camera_first):
+    """With a camera and a shape's sensor in one scene, ``mi.render`` (and mcrt) render
+    from the first in document order; the plan must describe that one (the thin
+    lens's depth of field only when the camera is first)."""
+    text = METER.read_text()
+    text = (text.replace('<bsdf type="diffuse" id="white">', THIN_LENS + '<bsdf type="diffuse" id="white">')
+            if camera_first else text.replace("</scene>", THIN_LENS + "</scene>"))
+    path = tmp_path / "both.xml"
+    path.write_text(text)
+    planned = plan_scene(path)
+    size = tuple(planned.scene.sensors()[0].film().size())
+    assert size == ((8, 6) if camera_first else (1, 1))
+    assert planned.plan.on("dof") == camera_first
 
 
 # ----------------------------------------------------------------------------

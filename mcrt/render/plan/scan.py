@@ -80,7 +80,7 @@ def scan_scene(desc: SceneDescription) -> Scan:
     nodes = desc.nodes
     scan = Scan()
     top = [i for _, i in children(desc, nodes[0].props)]
-    sensors = [i for i in top if nodes[i].type == mi.ObjectType.Sensor]
+    sensors = _sensors_in_mitsubas_order(desc, top)
     integrators = [i for i in top if nodes[i].type == mi.ObjectType.Integrator]
     scan.sensor = sensors[0] if sensors else -1
     scan.integrator = integrators[0] if integrators else None
@@ -94,6 +94,20 @@ def scan_scene(desc: SceneDescription) -> Scan:
         if node.type in (mi.ObjectType.Shape, mi.ObjectType.Sensor):
             _scan_media(scan, desc, node.props)
     return scan
+
+
+def _sensors_in_mitsubas_order(desc: SceneDescription, top: list[int]) -> list[int]:
+    """The sensor nodes in the order of ``mi.Scene.sensors()``: the scene's children in
+    document order, a shape standing for the sensor attached to it (an irradiance
+    meter, say). mcrt renders from the first, as ``mi.render`` does."""
+    found = []
+    for i in top:
+        if desc.nodes[i].type == mi.ObjectType.Sensor:
+            found.append(i)
+        elif desc.nodes[i].type == mi.ObjectType.Shape:
+            found += [j for _, j in children(desc, desc.nodes[i].props)
+                      if desc.nodes[j].type == mi.ObjectType.Sensor]
+    return found
 
 
 def _scan_media(scan: Scan, desc: SceneDescription, props: mi.Properties) -> None:
