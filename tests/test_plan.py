@@ -98,16 +98,19 @@ def count_calls(scene: mi.Scene, spp: int = 4) -> tuple[list[int], int, int]:
     return list(CALLS), int(dr.max(sampler.n1)[0]), int(dr.max(sampler.n2)[0])
 
 
-@pytest.mark.parametrize("scene, params", [
-    (CHECKERBOARD, {"width": "16", "height": "12"}),
-    (EFFECT_SCENES / "soft_shadows.xml", {"width": "16", "height": "12"}),
-    (EFFECT_SCENES / "dof.xml", {"width": "16", "height": "12"}),
-    (EFFECT_SCENES / "motion.xml", {"width": "16", "height": "12"}),
-    (EFFECT_SCENES / "glossy.xml", {"width": "24", "height": "18"}),
-    (EFFECT_SCENES / "combined.xml", {"width": "24", "height": "18"}),
-    (CORNELL, {"res": "16", "max_depth": "4"}),
+@pytest.mark.parametrize("scene, params, spp", [
+    (CHECKERBOARD, {"width": "16", "height": "12"}, 4),
+    (EFFECT_SCENES / "soft_shadows.xml", {"width": "16", "height": "12"}, 4),
+    (EFFECT_SCENES / "dof.xml", {"width": "16", "height": "12"}, 4),
+    (EFFECT_SCENES / "motion.xml", {"width": "16", "height": "12"}, 4),
+    (EFFECT_SCENES / "glossy.xml", {"width": "24", "height": "18"}, 4),
+    (EFFECT_SCENES / "combined.xml", {"width": "24", "height": "18"}, 4),
+    (CORNELL, {"res": "16", "max_depth": "4"}, 4),
+    # an irradiance meter: film and aperture samples, one pixel (so many lanes, for
+    # some path to reach its third vertex)
+    (ROOT / "scenes" / "foreign" / "irradiance_meter.xml", {}, 1024),
 ])
-def test_dimension_layout_matches_counted_sampler_calls(scene, params):
+def test_dimension_layout_matches_counted_sampler_calls(scene, params, spp):
     """The first traced calls are the camera's then one integrator step's, in the
     plan's order; the busiest lane makes exactly the plan's maximum number of
     1D and 2D calls (every bounded path here reaches its last step)."""
@@ -115,7 +118,7 @@ def test_dimension_layout_matches_counted_sampler_calls(scene, params):
     camera = [d.ndim for d in plan.camera_dimensions()]
     per_step, steps = plan.bounce_dimensions()
     per_step = [d.ndim for d in per_step]
-    calls, n1, n2 = count_calls(plan_scene(scene, params).scene)
+    calls, n1, n2 = count_calls(plan_scene(scene, params).scene, spp)
     assert calls[:len(camera) + len(per_step)] == camera + per_step
     if plan.integrator["type"] == "direct":
         assert calls == camera + per_step

@@ -77,6 +77,7 @@ class RenderPlan:
     subframes: int = 1
     subframe_times: list[float] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    aperture_sample: bool = False       # the rendered sensor draws a 2D aperture sample
 
     # -- queries --------------------------------------------------------------
     def on(self, effect: str) -> bool:
@@ -89,8 +90,8 @@ class RenderPlan:
     def camera_dimensions(self) -> list[Dimension]:
         """Sampler calls a camera sample makes before the integrator runs."""
         dims = [Dimension("film", 2)]
-        if self.camera == "thinlens":
-            dims.append(Dimension("lens", 2))
+        if self.aperture_sample:  # a thin lens's; an irradiance meter's direction
+            dims.append(Dimension("lens" if self.camera == "thinlens" else "aperture", 2))
         return dims  # the rendered shutter is closed: no per-path time sample
 
     def bounce_dimensions(self) -> tuple[list[Dimension], int | None]:

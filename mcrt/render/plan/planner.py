@@ -71,7 +71,8 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
         shutter=facts.shutter, sampler=sampler_name(sampler), spp=spp,
         motions=decisions.motions,
         streak_px=streak if math.isfinite(streak) else float(spp) * step_px,
-        coc_px=decisions.coc_px, notes=notes)
+        coc_px=decisions.coc_px, notes=notes,
+        aperture_sample=bool(scene.sensors()[0].needs_aperture_sample()))
     planned = PlannedScene(plan, scene, decisions.motions, step_px)
     planned.plan.subframes = planned.subframes_for(plan.spp)
     return planned
