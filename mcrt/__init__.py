@@ -2,8 +2,9 @@
 
 Importing the package activates the ``llvm_ad_rgb`` variant when none is active
 (after checking that Dr.Jit has a usable libLLVM) and registers mcrt's plugins
-(samplers ``uniform_grid``, ``jittered``, ``poisson_disk``; integrators
-``distribution``, ``adaptive`` and ``multisample``), so ``mi.load_dict({'type': 'jittered', ...})``
+(the samplers of :data:`mcrt.samplers.PLUGINS`: ``uniform_grid``, ``jittered``,
+``poisson_disk``, ``sobol``, ``zsobol``; integrators ``distribution``, ``adaptive``
+and ``multisample``), so ``mi.load_dict({'type': 'jittered', ...})``
 works right away.
 Call :func:`register` again after switching variants.
 

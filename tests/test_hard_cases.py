@@ -30,7 +30,7 @@ How "agrees" is tested (:func:`agreement_z`)
     channels; summing them as independent would understate the variance).
 
 Why |z| < Z_MAX = 5
-    Each scene has at most ~50 tile-channels and 8 samplers, so ~1,500
+    Each scene has at most ~50 tile-channels and 10 samplers, so ~2,000
     z-scores in the file. At 5 sigma a Gaussian false alarm has probability
     5.7e-7 each, 1e-3 for the whole file; the firefly tiles are skewed
     (Poisson-like counts of rare hits with expected counts in the tens to
