@@ -9,6 +9,9 @@
    luminance error against a 4096-spp ``jittered`` reference, mean over seeds, at 4 and
    16 spp; also with the error clipped at its 90th percentile, and with the light hidden
    and sampled only by emitter sampling (no bright visible rim).
+3. **The light's rim rows** on that Cornell box, where neighbouring pixels integrate
+   the same sliver of the light: does a quad's pair of pixels in such a row cancel,
+   against the least a pair stratified together could reach (8x the seeds)?
 
     python benchmarks/zsobol_blue_noise.py [--seeds 8]     # ~1 min
 """
@@ -85,12 +88,60 @@ def cornell(seeds: int) -> None:
                       f"{worst:.2f} | {np.mean(errors ** 2):.3e} |", flush=True)
 
 
+def _frac_var(t: float) -> float:
+    """q (1 - q) for q the fractional part of t: the Bernoulli variance of the one
+    stratum an edge cuts, with the edge t strata from the pixel's side."""
+    q = t % 1.0
+    return q * (1.0 - q)
+
+
+def rim_rows(seeds: int) -> None:
+    """The light's horizontal rims on the ``direct`` Cornell box: rows of pixels that
+    see the same sliver of the light (alike integrands, the case screen-space
+    anti-correlation is for). Per rim row: the light's coverage of its inner pixels
+    (over the light's full value, both less the surface beside the light), and the variance of the summed error
+    of the two pixels of a 2x2 quad's row against two independent pixels' (1: no
+    cancellation), measured over ``seeds`` renders and, for comparison, the least it
+    could be: two pixels whose 2N points are stratified together across them, for an
+    edge at that coverage. Then each sampler's share of the error energy in these
+    rows (the rest: the slanted sides and corners, whose neighbours are unlike)."""
+    desc = mi.cornell_box()
+    desc["sensor"]["film"].update(width=WIDTH, height=WIDTH, rfilter={"type": "box"})
+    desc["integrator"] = {"type": "direct"}
+    scene = mi.load_dict(desc)
+    reference = render_film(scene, make_sampler("jittered", 4096), seed=12345).rgb @ LUMINANCE
+    full = float(reference.max())
+    columns = np.nonzero((reference >= 0.5 * full).any(axis=0))[0][1:-1]  # inner columns
+    partial = (reference[:, columns] > 0.02 * full) & (reference[:, columns] < 0.995 * full)
+    rows = [int(r) for r in np.nonzero(partial.all(axis=1))[0]]
+    pairs = [c for c in columns if c % 2 == 0 and c + 1 in columns]
+    print("\n| spp | sampler | rim row | coverage | quad-row pair variance / two pixels' "
+          "| least for a pair stratified together | rim rows' share of the error energy |")
+    print("|---:|---|---:|---:|---:|---:|---:|")
+    for spp in (4, 16):
+        for name, params in SAMPLERS:
+            errors = np.stack([
+                render_film(scene, make_sampler(name, spp, **params), seed=seed).rgb
+                @ LUMINANCE - reference for seed in range(seeds)])
+            energy = (errors ** 2).mean(axis=0)
+            share = energy[np.ix_(rows, columns)].sum() / energy.sum()
+            for r in rows:
+                a, b = errors[:, r, pairs], errors[:, r, [c + 1 for c in pairs]]
+                ratio = np.mean((a + b).var(axis=0) / (a.var(axis=0) + b.var(axis=0)))
+                outside = np.minimum(reference[r - 1, columns], reference[r + 1, columns])
+                cover = float(np.median((reference[r, columns] - outside) / (full - outside)))
+                least = _frac_var(2 * spp * cover) / (2 * _frac_var(spp * cover))
+                print(f"| {spp} | {name} | {r} | {cover:.3f} | {ratio:.2f} | {least:.2f} | "
+                      f"{share:.2f} |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=8)
     args = parser.parse_args()
     smooth_integrand()
     cornell(args.seeds)
+    rim_rows(8 * args.seeds)
 
 
 if __name__ == "__main__":
