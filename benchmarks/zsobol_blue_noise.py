@@ -99,9 +99,10 @@ def rim_rows(seeds: int) -> None:
     """The light's horizontal rims on the ``direct`` Cornell box: rows of pixels that
     see the same sliver of the light (alike integrands, the case screen-space
     anti-correlation is for). Per rim row: the light's coverage of its inner pixels
-    (over the light's full value, both less the surface beside the light), and the variance of the summed error
-    of the two pixels of a 2x2 quad's row against two independent pixels' (1: no
-    cancellation), measured over ``seeds`` renders and, for comparison, the least it
+    (over the light's full value, both less the surface beside the light), and the
+    variance of the summed error of the two pixels of a 2x2 quad's row against two
+    independent pixels' (1: no cancellation), measured over ``seeds`` renders and,
+    for comparison, the least it
     could be: two pixels whose 2N points are stratified together across them, for an
     edge at that coverage. Then each sampler's share of the error energy in these
     rows (the rest: the slanted sides and corners, whose neighbours are unlike)."""
