@@ -189,6 +189,45 @@ def test_a_sensor_attached_to_a_shape_is_rendered_from(capsys, tmp_path):
     assert layers["rgb"].shape == (1, 1, 3) and np.all(layers["rgb"] > 0)
 
 
+SHALLOW = """<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="{depth}"/></integrator>
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="0,2,6" target="0,1,0" up="0,1,0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="12"/>
+            <rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
+        <bsdf type="roughconductor"/>
+    </shape>
+    <shape type="rectangle">
+        <transform name="to_world"><rotate x="1" angle="90"/><translate y="3" z="-2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="5"/></emitter>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+</scene>"""
+
+
+@pytest.mark.parametrize("depth", [0, 1])
+def test_a_path_that_stops_before_any_lighting_is_rendered_as_authored(tmp_path, depth):
+    """``path`` with max_depth 0 renders nothing and with 1 only the emitters the
+    camera sees: mcrt keeps it (``direct`` would light the floor), and plans no
+    soft shadows or glossy reflections, which need lighting (forcing one is an
+    error). The image mean agrees with ``mi.render`` (see the module doc)."""
+    path = tmp_path / "shallow.xml"
+    path.write_text(SHALLOW.format(depth=depth))
+    planned = plan_scene(path)
+    assert planned.plan.integrator == {"type": "path", "max_depth": depth}
+    assert planned.plan.effects_on == ["aa"]
+    ours, theirs = planned_mean(path), mitsuba_mean(path)
+    if depth == 0:
+        assert ours == theirs == (0.0, 0.0)
+    else:
+        assert ours[0] > 0.05 and z_score(ours, theirs) < 5, (ours, theirs)
+    with pytest.raises(McrtError, match="renders no lighting"):
+        plan_scene(path, overrides={"soft_shadows": True})
+
+
 THIN_LENS = """<sensor type="thinlens">
     <float name="aperture_radius" value="0.1"/><float name="focus_distance" value="3"/>
     <transform name="to_world"><lookat origin="0,2,6" target="0,0.5,0" up="0,1,0"/></transform>

@@ -107,8 +107,11 @@ def decide_described(facts: ScanFacts, author: AuthoredIntegrator,
     """The effects the description decides (all but dof and motion)."""
     d = Decisions(overrides)
     decide_aa(d)
-    decide_soft_shadows(d, facts)
-    decide_glossy(d, facts)
+    if author.unlit:
+        decide_unlit(d, author)
+    else:
+        decide_soft_shadows(d, facts)
+        decide_glossy(d, facts)
     decide_indirect(d, facts, author)
     note_media(d, facts.scan, author)
     return d
@@ -124,6 +127,22 @@ def decide_measured(d: Decisions, facts: SceneFacts) -> None:
 
 def decide_aa(d: Decisions) -> None:
     d.decide("aa", True, "film position sampled over the pixel area (film 2D)")
+
+
+def unlit_reason(author: AuthoredIntegrator) -> str:
+    depths = sorted({leaf.max_depth for leaf in author.leaves()})
+    what = "nothing" if depths == [0] else "only the emitters the camera sees"
+    return (f"{author.label} as authored: max_depth {', '.join(map(str, depths))} "
+            f"renders no lighting ({what})")
+
+
+def decide_unlit(d: Decisions, author: AuthoredIntegrator) -> None:
+    """Soft shadows and glossy reflections need lighting, which the integrator
+    does not render; the BSDFs are left as they are (never evaluated)."""
+    reason = unlit_reason(author)
+    for name in ("soft_shadows", "glossy"):
+        d.decide(name, False, reason, reason)
+    d.to_smooth = []
 
 
 def decide_soft_shadows(d: Decisions, facts: ScanFacts) -> None:
@@ -245,6 +264,8 @@ def _decide_authored_indirect(d: Decisions, scan: Scan, author: AuthoredIntegrat
                   + ("" if scatter else "; but no surface or medium can light another"))
     elif unknown:
         reason = f"{author.label} as authored: mcrt cannot tell what '{unknown[0]}' traces"
+    elif author.unlit:
+        reason = unlit_reason(author)
     else:
         reason = f"{author.label} as authored: direct lighting only"
     forced = d.overrides.get("indirect")

@@ -213,8 +213,16 @@ class AuthoredIntegrator:
         return self.max_depth < 0 or self.max_depth > 2
 
     @property
+    def unlit(self) -> bool:
+        """Whether every integrator that traces light stops before any lighting:
+        ``max_depth`` 0 renders nothing, 1 only the emitters the camera sees.
+        Such an integrator is rendered as authored (``direct`` would light it)."""
+        return all("max_depth" in leaf.props and 0 <= leaf.max_depth <= 1
+                   for leaf in self.leaves())
+
+    @property
     def replannable(self) -> bool:
-        return self.kind in REPLANNABLE
+        return self.kind in REPLANNABLE and not self.unlit
 
     @property
     def deep(self) -> bool:
