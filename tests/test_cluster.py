@@ -22,6 +22,8 @@ import pytest
 
 pytest.importorskip("distributed")
 
+import mitsuba as mi  # noqa: E402
+
 from mcrt.analysis.reference import get_reference  # noqa: E402
 from mcrt.analysis.study import load_config, run_study  # noqa: E402
 from mcrt.core.cluster import DaskExecutor  # noqa: E402
@@ -213,6 +215,27 @@ def test_a_scene_travels_with_its_files(tmp_path):
     assert scene_digest(copy) == scene_digest(xml) == bundle.digest
     (tmp_path / "meshes" / "tri.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
     assert scene_digest(xml) != bundle.digest  # a changed mesh is another scene
+
+
+def test_files_found_through_a_search_path_travel_too(tmp_path):
+    """A mesh named by its bare file name and found through ``<path value="meshes"/>``
+    (Mitsuba looks in such folders before the scene's own) is in the bundle and in
+    the digest, and the copy finds it the same way: Mitsuba builds it."""
+    (tmp_path / "scene" / "meshes").mkdir(parents=True)
+    (tmp_path / "scene" / "tri.obj").write_text("v 0 0 0\nv 9 0 0\nv 0 9 0\nf 1 2 3\n")
+    (tmp_path / "scene" / "meshes" / "tri.obj").write_text(
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    xml = tmp_path / "scene" / "s.xml"
+    xml.write_text('<scene version="3.0.0"><path value="meshes"/><shape type="obj" id="t">'
+                   '<string name="filename" value="tri.obj"/></shape></scene>')
+    bundle = bundle_scene(xml)
+    assert sorted(name for name, _ in bundle.files) == ["meshes/tri.obj", "s.xml"]
+    copy = materialize(bundle, tmp_path / "worker")
+    assert scene_digest(copy) == scene_digest(xml) == bundle.digest
+    area = mi.load_file(str(copy)).shapes()[0].surface_area()
+    assert float(area[0]) == pytest.approx(0.5)  # the search path's triangle, not 9x9
+    (tmp_path / "scene" / "meshes" / "tri.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert scene_digest(xml) != bundle.digest
 
 
 def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):

@@ -12,6 +12,7 @@ difference of 5 SE has probability below 1e-6 under the null hypothesis.
 from __future__ import annotations
 
 import logging
+import shutil
 from pathlib import Path
 
 import mitsuba as mi
@@ -187,6 +188,29 @@ def test_a_sensor_attached_to_a_shape_is_rendered_from(capsys, tmp_path):
     assert code == 0, err
     layers, _ = read_exr(tmp_path / "meter.exr")
     assert layers["rgb"].shape == (1, 1, 3) and np.all(layers["rgb"] > 0)
+
+
+def test_a_scenes_search_paths_find_its_files(tmp_path, monkeypatch):
+    """``<path value="..."/>`` adds a folder where the scene's files are looked for (here
+    a relative one, resolved against the scene's folder, with the working directory
+    elsewhere). mcrt parses and builds a scene in two steps: the folders the parse
+    added must still be searched when it builds the mesh (they once were not)."""
+    folder = tmp_path / "scene" / "lights"
+    folder.mkdir(parents=True)
+    shutil.copy(FOREIGN / "meshes" / "quad_light.obj", folder)
+    text = MESH_LIGHT.read_text().replace("<default name=\"res\"", '<path value="lights"/>'
+                                          '<default name="res"', 1)
+    path = tmp_path / "scene" / "search.xml"
+    path.write_text(text)
+    monkeypatch.chdir(tmp_path)
+    params = {"light": "quad_light.obj"}
+    planned = plan_scene(path, params)
+    assert planned.plan.on("soft_shadows")
+    ours = mean_and_se([render_film(planned.scene, spp=16, seed=s).image for s in range(SEEDS)])
+    scene = mi.load_file(str(path), **params)
+    theirs = mean_and_se([np.array(mi.render(scene, spp=16, seed=100 + s))
+                          for s in range(SEEDS)])
+    assert ours[0] > 0.05 and z_score(ours, theirs) < 5, (ours, theirs)
 
 
 SHALLOW = """<scene version="3.0.0">

@@ -51,11 +51,25 @@ class SceneFile:
     xml: bool = False          # a reference walked as XML (an include or a .xml file)
 
 
+def _resolve(name: str, folder: Path, search: list[Path]) -> Path:
+    """Where Mitsuba finds ``name``: the folders of ``<path value=...>`` elements, the
+    last one first (each is prepended to its file resolver), then ``folder``."""
+    if os.path.isabs(name):
+        return Path(name)
+    for base in (*reversed(search), folder):
+        if (base / name).is_file():
+            return base / name
+    return folder / name
+
+
 def walk_scene(path: str | Path, params: dict[str, str] | None = None,
-               seen: set[Path] | None = None) -> Iterator[SceneFile]:
+               seen: set[Path] | None = None,
+               search: list[Path] | None = None) -> Iterator[SceneFile]:
     """The scene's XML files (with their bytes) and, in document order, every
-    reference in them; included XML files are walked in place, once each."""
+    reference in them; included XML files are walked in place, once each.
+    ``<path value=...>`` elements add folders to look in, as they do in Mitsuba."""
     seen = set() if seen is None else seen
+    search = [] if search is None else search
     path = Path(path).resolve()
     if path in seen:
         return
@@ -69,6 +83,9 @@ def walk_scene(path: str | Path, params: dict[str, str] | None = None,
     values = {el.get("name", ""): el.get("value", "") for el in root.iter("default")}
     values.update(params or {})
     for el in root.iter():
+        if el.tag == "path" and el.get("value"):
+            search.append(path.parent / _substitute(el.get("value", ""), values))
+            continue
         if el.tag == "include":
             name = el.get("filename")
         elif el.get("name") == "filename":
@@ -78,13 +95,13 @@ def walk_scene(path: str | Path, params: dict[str, str] | None = None,
         if not name:
             continue
         name = _substitute(name, values)
-        target = (path.parent / name) if not os.path.isabs(name) else Path(name)
+        target = _resolve(name, path.parent, search)
         exists = target.is_file()
         xml = exists and (el.tag == "include" or target.suffix.lower() == ".xml")
         yield SceneFile(target.resolve() if exists else target, name=name, exists=exists,
                         xml=xml)
         if xml:
-            yield from walk_scene(target, params, seen)
+            yield from walk_scene(target, params, seen, search)
 
 
 def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:

@@ -81,17 +81,22 @@ def _explain(message: str, path: Path) -> str:
     return f"{message}; {listed}"
 
 
-@contextmanager
-def _scene_folder_first(path: Path) -> Iterator[None]:
-    """Resolve the files a scene names (includes, meshes, textures) relative to
-    its folder first, as ``mi.load_file`` does; the resolver is restored after."""
+def _resolver() -> mi.FileResolver:
     # mi.file_resolver is missing from Mitsuba 3.9's stubs (they only have the
     # deprecated mi.Thread.file_resolver), which makes it an untyped object.
-    resolver = cast(Callable[[], mi.FileResolver], mi.file_resolver)()
+    return cast(Callable[[], mi.FileResolver], mi.file_resolver)()
+
+
+@contextmanager
+def _search_paths(first: list[str]) -> Iterator[mi.FileResolver]:
+    """Resolve files (includes, meshes, textures) in the folders ``first``, then
+    where the resolver looked before; the resolver is restored after."""
+    resolver = _resolver()
     saved = [str(resolver[i]) for i in range(len(resolver))]
-    resolver.prepend(str(path.resolve().parent))
+    for entry in reversed(first):
+        resolver.prepend(entry)
     try:
-        yield
+        yield resolver
     finally:
         resolver.clear()
         for entry in saved:
@@ -106,6 +111,9 @@ class SceneDescription:
     path: Path
     config: mi.parser.ParserConfig
     state: mi.parser.ParserState
+    #: Where its files are found: the scene's folder first, as ``mi.load_file`` does,
+    #: and the folders its ``<path value="..."/>`` elements added while it was parsed.
+    search: list[str]
 
     @property
     def nodes(self) -> mi.parser.SceneNodeList:
@@ -116,7 +124,7 @@ class SceneDescription:
         Mitsuba's transforms edit a copy)."""
         state = mi.parser.ParserState(self.state)
         try:
-            with _scene_folder_first(self.path):
+            with _search_paths(self.search):
                 mi.parser.transform_all(self.config, state)
                 scene = mi.parser.instantiate(self.config, state)
         except Exception as error:  # Mitsuba reports plugin errors as RuntimeError
@@ -150,15 +158,19 @@ def read_scene(path: str | Path, params: dict[str, str] | None = None) -> SceneD
         raise SceneError("no Mitsuba variant is active (import mcrt to activate one)")
     config = mi.parser.ParserConfig(variant)
     try:
-        with _scene_folder_first(path):
+        with _search_paths([str(path.resolve().parent)]) as resolver:
+            before = {str(resolver[i]) for i in range(len(resolver))}
             state = mi.parser.parse_file(config, str(path), **(params or {}))
+            search = [str(resolver[i]) for i in range(len(resolver))]
     except Exception as error:  # Mitsuba reports parse errors as RuntimeError
         raise SceneError(f"cannot load scene {path}: "
                          f"{_explain(mitsuba_message(error), path)}") from None
     if state.nodes[0].type != mi.ObjectType.Scene:
         raise _not_a_scene(path)
     _upgrade(config, state, path)
-    desc = SceneDescription(path, config, state)
+    desc = SceneDescription(path, config, state,
+                            [entry for entry in search if entry not in before]
+                            + [str(path.resolve().parent)])
     if rfilter is not None:
         set_rfilter(desc, rfilter)
     return desc
