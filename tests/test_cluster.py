@@ -238,6 +238,34 @@ def test_files_found_through_a_search_path_travel_too(tmp_path):
     assert scene_digest(xml) != bundle.digest
 
 
+def test_an_included_files_mesh_is_the_main_scenes_folders(tmp_path):
+    """Mitsuba resolves a nested ``<include>`` relative to the file that includes it,
+    but a mesh an included file names relative to the main scene's folder; the walk
+    behind digests and bundles does the same (a same-named file beside the include
+    is not the scene's)."""
+    for folder in ("scene", "parts"):
+        (tmp_path / folder).mkdir()
+    (tmp_path / "scene" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "parts" / "tri.obj").write_text("v 0 0 0\nv 9 0 0\nv 0 9 0\nf 1 2 3\n")
+    (tmp_path / "parts" / "inner.xml").write_text(
+        '<scene version="3.0.0"><shape type="obj"><string name="filename" value="tri.obj"/>'
+        '</shape></scene>')
+    (tmp_path / "parts" / "outer.xml").write_text(
+        '<scene version="3.0.0"><include filename="inner.xml"/></scene>')
+    xml = tmp_path / "scene" / "s.xml"
+    xml.write_text('<scene version="3.0.0"><include filename="../parts/outer.xml"/></scene>')
+    area = mi.load_file(str(xml)).shapes()[0].surface_area()
+    assert float(area[0]) == pytest.approx(0.5)  # scene/tri.obj
+    bundle = bundle_scene(xml)
+    assert sorted(name for name, _ in bundle.files) == [
+        "parts/inner.xml", "parts/outer.xml", "scene/s.xml", "scene/tri.obj"]
+    before = scene_digest(xml)
+    (tmp_path / "parts" / "tri.obj").write_text("v 0 0 0\nv 8 0 0\nv 0 9 0\nf 1 2 3\n")
+    assert scene_digest(xml) == before
+    (tmp_path / "scene" / "tri.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert scene_digest(xml) != before
+
+
 def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
     """The quick study (configs/quick.toml) in this process and on `local:2`
     (references shared through the cache): results.json equal apart from times."""

@@ -2,8 +2,10 @@
 
 A Mitsuba scene is an XML file plus what it includes (``<include
 filename=...>``) and the files it names (``<string name="filename" .../>``:
-meshes, textures, spectra, volumes), resolved relative to the XML with the
-scene's ``$params`` and ``<default>`` values substituted. :func:`walk_scene`
+meshes, textures, spectra, volumes), resolved as Mitsuba resolves them (an
+include relative to the file including it, any other file in the folders of
+``<path>`` elements and then the main scene's folder) with the scene's
+``$params`` and ``<default>`` values substituted. :func:`walk_scene`
 lists them once; :func:`scene_digest` (the identity of a scene's content in
 every cache key) and :func:`bundle_scene` (the files a worker without a shared
 file system needs) are both built on that walk.
@@ -63,14 +65,19 @@ def _resolve(name: str, folder: Path, search: list[Path]) -> Path:
 
 
 def walk_scene(path: str | Path, params: dict[str, str] | None = None,
-               seen: set[Path] | None = None,
-               search: list[Path] | None = None) -> Iterator[SceneFile]:
+               seen: set[Path] | None = None, search: list[Path] | None = None,
+               top: Path | None = None) -> Iterator[SceneFile]:
     """The scene's XML files (with their bytes) and, in document order, every
     reference in them; included XML files are walked in place, once each.
-    ``<path value=...>`` elements add folders to look in, as they do in Mitsuba."""
+
+    Resolved as Mitsuba 3.9 does: an include relative to the file that includes
+    it, any other file (a mesh, a texture) relative to the main scene's folder
+    ``top``, even when an included file names it; ``<path value=...>`` elements
+    add folders to look in before that one."""
     seen = set() if seen is None else seen
     search = [] if search is None else search
     path = Path(path).resolve()
+    top = path.parent if top is None else top
     if path in seen:
         return
     seen.add(path)
@@ -95,13 +102,13 @@ def walk_scene(path: str | Path, params: dict[str, str] | None = None,
         if not name:
             continue
         name = _substitute(name, values)
-        target = _resolve(name, path.parent, search)
+        target = _resolve(name, path.parent if el.tag == "include" else top, search)
         exists = target.is_file()
         xml = exists and (el.tag == "include" or target.suffix.lower() == ".xml")
         yield SceneFile(target.resolve() if exists else target, name=name, exists=exists,
                         xml=xml)
         if xml:
-            yield from walk_scene(target, params, seen, search)
+            yield from walk_scene(target, params, seen, search, top)
 
 
 def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:
