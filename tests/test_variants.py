@@ -1,5 +1,6 @@
-"""The render core on Mitsuba's other variants: spectral and monochrome (LLVM),
-CUDA where a GPU exists, and a one-line refusal of scalar variants.
+"""The render core on Mitsuba's other variants: spectral, monochrome and polarized
+(LLVM), CUDA where a GPU exists, and one-line refusals of scalar variants, of a
+``specfilm`` and of the ``stokes`` integrator.
 
 Agreement with ``mi.render``: the image means of mcrt's render and of Mitsuba's
 own render of the same scene must agree within 5 standard errors. The standard
@@ -37,7 +38,8 @@ def image_mean_se(stats) -> np.ndarray:
     return np.sqrt((stats.variance / n).sum(axis=(0, 1))) / stats.count.size
 
 
-@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_mono"])
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_mono",
+                                     "llvm_ad_spectral_polarized"])
 def test_core_agrees_with_mi_render(variant):
     use(variant)
     scene = mi.load_file(CORNELL, res="24", sampler="independent")
@@ -96,3 +98,35 @@ def test_cuda_render_is_deterministic_and_agrees():
     se = image_mean_se(render_stats(scene, make_sampler("independent", 64), seed=2).stats)
     diff = np.abs(ours.image.mean(axis=(0, 1)) - theirs.mean(axis=(0, 1)))
     assert np.all(diff < 5 * np.sqrt(1.25) * se)
+
+
+#: A small scene for the refusals below: a sphere under a constant sky.
+_SKY = """<scene version="3.0.0">{integrator}
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+        {film}
+    </sensor>
+    <shape type="sphere"/>
+    <emitter type="constant"/>
+</scene>"""
+_HDRFILM = '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
+
+
+@pytest.mark.parametrize("variant, integrator, film, message", [
+    # Mitsuba 3.9.1's stokes sample() segfaults when called from Python: refused first.
+    ("llvm_ad_spectral_polarized", '<integrator type="stokes"><integrator type="path"/>'
+     '</integrator>', _HDRFILM, "stokes integrator"),
+    ("llvm_ad_spectral", "", '<film type="specfilm"><integer name="width" value="8"/>'
+     '<integer name="height" value="8"/><spectrum name="band" value="400:1, 700:1"/></film>',
+     "hdrfilm"),
+])
+def test_what_mcrt_cannot_render_is_a_one_line_error(capsys, tmp_path, variant, integrator,
+                                                     film, message):
+    scene = tmp_path / "s.xml"
+    scene.write_text(_SKY.format(integrator=integrator, film=film))
+    code, _, err = run_cli(capsys, "--variant", variant, "render", str(scene), "--spp", "4",
+                           "-o", str(tmp_path / "out"))
+    lines = err.strip().splitlines()
+    errors = [line for line in lines if not line.startswith("mcrt: note:")]
+    assert code == 2 and len(errors) == 1 and message in errors[0], err
+    assert not (tmp_path / "out.exr").exists()

@@ -149,6 +149,12 @@ def sampling_integrator(scene: mi.Scene) -> mi.SamplingIntegrator:
     if not isinstance(integrator, mi.SamplingIntegrator):
         raise McrtError(f"mcrt renders with sampling integrators (path, direct, ...); this scene "
                         f"uses {type(integrator).__name__}")
+    if integrator.class_name() == "StokesIntegrator":
+        # Checked in Mitsuba 3.9.1: the binding of its sample() ends the process
+        # with a segmentation fault, so it must never be called.
+        raise McrtError("the stokes integrator cannot be driven one sample at a time from "
+                        "Python (in Mitsuba 3.9 its sample() crashes); render it with "
+                        "mi.render, or give mcrt the integrator it wraps")
     return integrator
 
 

@@ -164,6 +164,10 @@ def _prepare(scene: mi.Scene, sampler: mi.Sampler | None, spp: int | None,
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
     film = sensor_obj.film()
+    if film.class_name() != "HDRFilm":  # specfilm: channels of its own sensitivities
+        raise McrtError(f"mcrt renders hdrfilm films (RGB, luminance or XYZ channels); this "
+                        f"scene's film is a {film.class_name()}: give it an hdrfilm, or "
+                        f"render it with mi.render")
     sampler = sampler if sampler is not None else sensor_obj.sampler()
     if spp is not None:
         sampler.set_sample_count(spp)

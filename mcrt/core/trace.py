@@ -58,7 +58,10 @@ def pixel_of_index(film: mi.Film, index: mi.UInt32) -> mi.Vector2i:
 
 
 def to_rgb(value: Any, wavelengths: Any, active: Any = True) -> mi.Color3f:
-    """The linear RGB an ``ImageBlock`` stores for a radiance ``value``."""
+    """The linear RGB an ``ImageBlock`` stores for a radiance ``value`` (of a
+    polarized variant: its Mueller matrix's intensity, as Mitsuba's films take)."""
+    if mi.is_polarized:
+        value = mi.unpolarized_spectrum(value)
     if mi.is_spectral:
         return mi.spectrum_to_srgb(value, wavelengths, active)
     if mi.is_monochromatic:
