@@ -112,19 +112,22 @@ _SKY = """<scene version="3.0.0">{integrator}
 _HDRFILM = '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
 
 
-@pytest.mark.parametrize("variant, integrator, film, message", [
+_SPECFILM = ('<film type="specfilm"><integer name="width" value="8"/><integer name="height" '
+             'value="8"/><spectrum name="band" value="400:1, 700:1"/></film>')
+
+
+@pytest.mark.parametrize("variant, integrator, film, options, message", [
     # Mitsuba 3.9.1's stokes sample() segfaults when called from Python: refused first.
     ("llvm_ad_spectral_polarized", '<integrator type="stokes"><integrator type="path"/>'
-     '</integrator>', _HDRFILM, "stokes integrator"),
-    ("llvm_ad_spectral", "", '<film type="specfilm"><integer name="width" value="8"/>'
-     '<integer name="height" value="8"/><spectrum name="band" value="400:1, 700:1"/></film>',
-     "hdrfilm"),
+     '</integrator>', _HDRFILM, ["--spp", "4"], "stokes integrator"),
+    ("llvm_ad_spectral", "", _SPECFILM, ["--spp", "4"], "hdrfilm"),
+    ("llvm_ad_spectral", "", _SPECFILM, ["--adaptive"], "hdrfilm"),
 ])
 def test_what_mcrt_cannot_render_is_a_one_line_error(capsys, tmp_path, variant, integrator,
-                                                     film, message):
+                                                     film, options, message):
     scene = tmp_path / "s.xml"
     scene.write_text(_SKY.format(integrator=integrator, film=film))
-    code, _, err = run_cli(capsys, "--variant", variant, "render", str(scene), "--spp", "4",
+    code, _, err = run_cli(capsys, "--variant", variant, "render", str(scene), *options,
                            "-o", str(tmp_path / "out"))
     lines = err.strip().splitlines()
     errors = [line for line in lines if not line.startswith("mcrt: note:")]

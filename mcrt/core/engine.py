@@ -158,6 +158,17 @@ def sampling_integrator(scene: mi.Scene) -> mi.SamplingIntegrator:
     return integrator
 
 
+def supported_film(film: mi.Film) -> mi.Film:
+    """``film``, checked to be one mcrt develops: an ``hdrfilm`` (a ``specfilm``'s
+    channels are its own spectral sensitivities, which mcrt's RGB, luminance and
+    XYZ accumulation does not form)."""
+    if film.class_name() != "HDRFilm":
+        raise McrtError(f"mcrt renders hdrfilm films (RGB, luminance or XYZ channels); this "
+                        f"scene's film is a {film.class_name()}: give it an hdrfilm, or "
+                        f"render it with mi.render")
+    return film
+
+
 def film_values(film: mi.Film, samples: CameraSamples) -> list[Any]:
     """The channels an ``ImageBlock`` of ``film`` receives for each sample:
     R, G, B, [A,] the weight 1, then the integrator's AOVs."""

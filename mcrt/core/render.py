@@ -35,6 +35,7 @@ from .engine import (
     pass_shape,
     run_passes,
     sampling_integrator,
+    supported_film,
 )
 from .executor import cluster_status
 from .job import Checkpoint, CheckpointPacer, Interrupted, Job, run_job
@@ -163,11 +164,7 @@ def _prepare(scene: mi.Scene, sampler: mi.Sampler | None, spp: int | None,
              sensor: int) -> tuple[mi.Film, mi.Sampler, int]:
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
-    film = sensor_obj.film()
-    if film.class_name() != "HDRFilm":  # specfilm: channels of its own sensitivities
-        raise McrtError(f"mcrt renders hdrfilm films (RGB, luminance or XYZ channels); this "
-                        f"scene's film is a {film.class_name()}: give it an hdrfilm, or "
-                        f"render it with mi.render")
+    film = supported_film(sensor_obj.film())
     sampler = sampler if sampler is not None else sensor_obj.sampler()
     if spp is not None:
         sampler.set_sample_count(spp)

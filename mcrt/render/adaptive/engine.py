@@ -15,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.accumulators import block_moments, sequential_block_sums
-from ...core.engine import deferred_interrupts, sampling_integrator, trace_pass
+from ...core.engine import deferred_interrupts, sampling_integrator, supported_film, trace_pass
 from ...core.job import Checkpoint, CheckpointPacer, Interrupted
 from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats, chan_merge
@@ -129,7 +129,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     """
     sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
-    film = sensor_obj.film()
+    film = supported_film(sensor_obj.film())
     sampler = (sampler if sampler is not None else sensor_obj.sampler()).clone()
     ladder = _ladder(sampler, settings)
     first = ladder[0]
