@@ -17,7 +17,7 @@ from conftest import TINY_SCENE
 
 from mcrt.analysis.metrics import rel_mse
 from mcrt.cli import _adaptive_args, main
-from mcrt.core.render import render_film, render_stats
+from mcrt.core.render import render_film, render_stats, srgb_to_xyz_matrix
 from mcrt.core.sampling import make_sampler
 from mcrt.errors import McrtError
 from mcrt.io import read_exr
@@ -530,6 +530,26 @@ def test_plugin_renders_from_xml_through_mi_render():
     assert result.spp.max() <= 128 and result.spp.min() == 16
     mi.render(scene, seed=3, spp=48)  # mi.render's spp is the per-pixel budget
     assert integrator.last_result.spp.max() <= 48
+
+
+@pytest.mark.parametrize("pixel_format, channels", [("luminance", 1), ("xyza", 4)])
+def test_plugin_develops_films_of_other_pixel_formats(pixel_format, channels):
+    """The plugin puts linear sRGB[A] in the film, which forms its own Y or X Y Z
+    on develop (it once refused such films): the same samples as an RGB film,
+    converted with Mitsuba's matrix."""
+    images = {}
+    for fmt in ("rgba", pixel_format):
+        scene = mi.cornell_box()
+        scene["sensor"]["film"].update({"width": 16, "height": 16, "pixel_format": fmt,
+                                        "rfilter": {"type": "box"}})
+        scene["integrator"] = {"type": "adaptive", "max_spp": 32,
+                               "nested": {"type": "path", "max_depth": 3}}
+        images[fmt] = np.array(mi.render(mi.load_dict(scene), seed=4), np.float64)
+    image, rgb = images[pixel_format], images["rgba"][..., :3]
+    assert image.shape == (16, 16, channels)
+    matrix = srgb_to_xyz_matrix()
+    expected = rgb @ matrix[1][:, None] if channels == 1 else rgb @ matrix.T
+    np.testing.assert_allclose(image[..., :3], expected, rtol=1e-4, atol=1e-5)
 
 
 def test_plugin_from_a_dict_wraps_path_and_uses_the_film_filter():

@@ -142,19 +142,22 @@ def test_failure_writing_keeps_the_render(tmp_path, capsys, monkeypatch):
 # ----------------------------------------------------------------- class 3
 
 
+@pytest.mark.parametrize("mode", [[], ["--adaptive", "--spp", "64"]], ids=["fixed", "adaptive"])
 @pytest.mark.parametrize("pixel_format, labels", [
     ("luminance", ["Y"]), ("luminance_alpha", ["Y", "A"]), ("xyz", ["X", "Y", "Z"]),
     ("xyza", ["X", "Y", "Z", "A"]), ("rgba", ["R", "G", "B", "A"])])
-def test_pixel_formats_written_as_mitsuba_labels_them(tmp_path, capsys, pixel_format, labels):
+def test_pixel_formats_written_as_mitsuba_labels_them(tmp_path, capsys, pixel_format, labels,
+                                                      mode):
     """The EXR holds what the film holds, under Mitsuba's labels; converting it
     back gives the RGB render of the same samples; the PNG preview is the
-    preview of that RGB (XYZ is never encoded as if it were sRGB)."""
+    preview of that RGB (XYZ is never encoded as if it were sRGB). Adaptive
+    renders too: their samples do not depend on the pixel format."""
     from PIL import Image
 
     rgb_out, out = tmp_path / "rgb", tmp_path / pixel_format
     for target, fmt in ((rgb_out, "rgb"), (out, pixel_format)):
         code, _, stderr = run_cli(capsys, "-q", "render", str(SPHERE), "-D",
-                                  f"pixel_format={fmt}", "-o", str(target))
+                                  f"pixel_format={fmt}", *mode, "-o", str(target))
         assert code == 0, stderr
     rgb = read_exr(rgb_out.with_suffix(".exr"))[0]["rgb"].astype(np.float64)
     layers, meta = read_exr(out.with_suffix(".exr"))

@@ -325,9 +325,11 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
               f"converged {100.0 * record.converged_pixels / pixels:5.1f}%", flush=True)
 
     def write(result, extra: dict) -> None:
-        meta = {**metadata, **result.summary(), "sampler": result.sampler, **extra}
+        meta = {**metadata, **result.summary(), "sampler": result.sampler,
+                "image_channels": " ".join(result.channels), **extra}
         meta.pop("render_seconds", None)  # no timings: equal renders, equal files
-        write_all(lambda: write_exr(exr_path, result.layers(), meta),
+        write_all(lambda: write_exr(exr_path, result.layers(), meta,
+                                    channels=result.film_channels()),
                   lambda: write_png(png_path, result.rgb),
                   lambda: write_heatmap(heat_path, result.spp, settings.min_spp,
                                         settings.max_spp))

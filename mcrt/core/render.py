@@ -121,6 +121,24 @@ def linear_srgb(image: np.ndarray, channels: list[str]) -> np.ndarray:
     raise McrtError(f"cannot show a film with channels {', '.join(channels)} as RGB")
 
 
+def in_film_format(film: mi.Film, image: np.ndarray, alpha: bool) -> tuple[np.ndarray, list[str]]:
+    """Linear sRGB pixels (H, W, 3, then an alpha channel if ``alpha``) in the
+    channels ``film`` develops, as Mitsuba's ``hdrfilm`` forms them: luminance as
+    ``Y`` (the Y row of :func:`srgb_to_xyz_matrix`), XYZ through that matrix,
+    RGB as it is; the alpha kept where the format has one."""
+    match = re.search(r"pixel_format = (\w+)", str(film))
+    names = list(_FORMAT_CHANNELS.get(match.group(1) if match else "rgb", "RGB"))
+    rgb = image[..., :3].astype(np.float64)
+    if names[0] == "X":
+        rgb = rgb @ srgb_to_xyz_matrix().T
+    elif names[0] == "Y":
+        rgb = rgb @ srgb_to_xyz_matrix()[1][:, None]
+    out = rgb.astype(image.dtype)
+    if alpha:
+        out = np.concatenate([out, image[..., 3:4]], axis=-1)
+    return out, names[:out.shape[-1]]
+
+
 @dataclass
 class StatsRender:
     """Per-pixel sample statistics of a render and how they were made."""
@@ -139,7 +157,7 @@ class StatsRender:
 
 #: Channels of a developed film by its ``pixel_format`` (Mitsuba's labels).
 _FORMAT_CHANNELS = {"rgb": "RGB", "rgba": "RGBA", "luminance": "Y", "luminance_alpha": "YA",
-                    "xyz": "XYZ", "xyza": "XYZA"}
+                    "y": "Y", "ya": "YA", "xyz": "XYZ", "xyza": "XYZA"}
 
 
 def channel_names(film: mi.Film, count: int, aovs: list[str] | None = None) -> list[str]:
@@ -364,5 +382,5 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
                        seconds=time.perf_counter() - start)
 
 
-__all__ = ["FilmRender", "StatsRender", "channel_names", "linear_srgb", "render_film",
-           "render_stats", "srgb_to_xyz_matrix"]
+__all__ = ["FilmRender", "StatsRender", "channel_names", "in_film_format", "linear_srgb",
+           "render_film", "render_stats", "srgb_to_xyz_matrix"]

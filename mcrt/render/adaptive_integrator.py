@@ -111,7 +111,11 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         self.last_result = result
         film = sensor_obj.film()
         film.prepare([])
-        film.put_block(_block(film, result.image))
+        # The film stores linear sRGB[A] and forms its own Y or X Y Z on develop.
+        rgb = result.rgb
+        if result.channels[-1] == "A":
+            rgb = np.concatenate([rgb, result.image[..., -1:]], axis=-1)
+        film.put_block(_block(film, rgb))
         if not develop:
             return mi.TensorXf()
         image = film.develop()
@@ -155,10 +159,10 @@ def _seed_value(seed) -> int:
 
 def _block(film: mi.Film, image: np.ndarray) -> mi.ImageBlock:
     """An image block holding the reconstructed crop window with unit weights."""
-    channels = film.base_channels_count()  # R, G, B[, A]
+    channels = 4 if mi.has_flag(film.flags(), mi.FilmFlags.Alpha) else 3  # R, G, B[, A]
     if image.shape[2] != channels:
-        raise McrtError(f"adaptive: cannot develop {image.shape[2]} channels into a film with "
-                        f"{channels}; use an rgb or rgba hdrfilm")
+        raise McrtError(f"adaptive: cannot develop {image.shape[2]} channels into a film that "
+                        f"stores {channels}")
     h, w, _ = image.shape
     data = np.concatenate([image, np.ones((h, w, 1), np.float32)], axis=-1)
     tensor = mi.TensorXf(np.ascontiguousarray(data, dtype=np.float32))

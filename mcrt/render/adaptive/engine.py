@@ -17,6 +17,7 @@ import numpy as np
 from ...core.accumulators import block_moments, sequential_block_sums
 from ...core.engine import deferred_interrupts, sampling_integrator, supported_film, trace_pass
 from ...core.job import Checkpoint, CheckpointPacer, Interrupted
+from ...core.render import in_film_format
 from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats, chan_merge
 from ...core.trace import CameraSamples, film_grid_size, pixel_of_index
@@ -305,7 +306,7 @@ def _result(film, acc, width, height, s, settings, records, sampler, ladder, has
         empty = int((stats.count == 0).sum())
         log.warning("adaptive: %d NaN/Inf samples left out (%d pixels had no finite sample "
                     "and are 0)", nonfinite, empty)
-    names = ["R", "G", "B", "A"] if has_alpha else ["R", "G", "B"]
+    image, names = in_film_format(film, image, has_alpha)  # luminance or XYZ films too
     return AdaptiveRender(image=image.astype(np.float32), channels=names, stats=stats,
                           spp=spp, passes=records, seconds=seconds, settings=settings,
                           sampler=_sampler_label(sampler), batch_ladder=ladder,

@@ -6,6 +6,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ...core.render import linear_srgb
 from ...core.stats import PixelStats
 from .settings import AdaptiveSettings
 
@@ -38,7 +39,7 @@ class AdaptiveRender:
     float64.
     """
 
-    image: np.ndarray  # (H, W, C) float32, the film's channels (R, G, B[, A])
+    image: np.ndarray  # (H, W, C) float32, the film's channels (R G B, Y or X Y Z; [A])
     channels: list[str]
     stats: PixelStats
     #: Samples traced per pixel, NaN/Inf included, (H, W) int64.
@@ -62,7 +63,13 @@ class AdaptiveRender:
 
     @property
     def rgb(self) -> np.ndarray:
-        return self.image[..., :3]
+        """The image as linear sRGB (H, W, 3), whatever the film's pixel format."""
+        return linear_srgb(self.image, self.channels)
+
+    def film_channels(self) -> dict[str, np.ndarray]:
+        """The film's channels under Mitsuba's labels (``R G B [A]``, ``Y [A]``,
+        ``X Y Z [A]``), (H, W) each, for ``write_exr(channels=...)``."""
+        return {name: self.image[..., c] for c, name in enumerate(self.channels)}
 
     @property
     def variance(self) -> np.ndarray:
@@ -79,9 +86,8 @@ class AdaptiveRender:
         return self.stats.nonfinite
 
     def layers(self) -> dict[str, np.ndarray]:
-        """Float32 layers for :func:`mcrt.io.write_exr`."""
-        return {"rgb": self.image.astype(np.float32),
-                "variance": self.variance.astype(np.float32),
+        """Float32 layers for :func:`mcrt.io.write_exr` besides :meth:`film_channels`."""
+        return {"variance": self.variance.astype(np.float32),
                 "stderr": self.standard_error.astype(np.float32),
                 "stderr_y": self.luminance_stderr.astype(np.float32),
                 "spp": self.spp.astype(np.float32),
