@@ -182,6 +182,39 @@ def test_plot(good_report, monkeypatch, error):
     _check(path.parent, before, raised, error)
 
 
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "kill"])
+def test_a_signal_in_the_middle_of_drawing_lets_the_plot_finish(tmp_path, signum):
+    """The signal arrives while matplotlib draws (an artist sends it to this
+    process): the PNG is still written whole, and the interrupt comes after it as
+    a KeyboardInterrupt. Raised inside the drawing, it once surfaced as matplotlib's
+    "ValueError: Invalid affine transformation matrix" (a traceback from a killed
+    ``mcrt compare``), with no file."""
+    from matplotlib.lines import Line2D
+    from PIL import Image
+
+    from mcrt.analysis.plots import new_figure, save_figure
+    from mcrt.core.engine import termination_as_interrupt
+
+    class Interrupting(Line2D):
+        def draw(self, renderer):
+            os.kill(os.getpid(), signum)
+            for _ in range(1000):  # the handler runs between bytecodes, in here
+                pass
+            super().draw(renderer)
+
+    fig = new_figure(2, 2)
+    ax = fig.add_subplot()
+    ax.add_line(Interrupting([0, 1], [1, 0]))
+    ax.plot([0, 1], [0, 1], label="a line")
+    ax.legend(loc="best")  # the drawing step that turned the interrupt into a ValueError
+    path = tmp_path / "plot.png"
+    with termination_as_interrupt(), pytest.raises(KeyboardInterrupt):
+        save_figure(fig, path)
+    with Image.open(path) as image:
+        assert image.size == (240, 240)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
 @pytest.mark.parametrize("error", ERRORS, ids=["ctrl-c", "disk-full"])
 def test_png_image(tmp_path, monkeypatch, error):
     import mcrt.io.png as png_module

@@ -39,8 +39,15 @@ def new_figure(width: float, height: float) -> Figure:
 
 
 def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 120) -> None:
-    """Write ``fig`` as PNG to ``path`` atomically."""
-    with atomic_path(path) as tmp:
+    """Write ``fig`` as PNG to ``path`` atomically.
+
+    Ctrl-C and termination signals wait until the file is written: raised inside
+    matplotlib's drawing, where its C++ code converts Python objects, the
+    ``KeyboardInterrupt`` came out as "ValueError: Invalid affine transformation
+    matrix" (a killed ``mcrt compare`` printed a traceback instead of stopping)."""
+    from ..core.engine import deferred_interrupts
+
+    with deferred_interrupts(), atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
 
 
