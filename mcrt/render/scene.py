@@ -111,8 +111,8 @@ class SceneDescription:
     path: Path
     config: mi.parser.ParserConfig
     state: mi.parser.ParserState
-    #: Where its files are found: the scene's folder first, as ``mi.load_file`` does,
-    #: and the folders its ``<path value="..."/>`` elements added while it was parsed.
+    #: Where its files are found, in order, as ``mi.load_file`` finds them: the folders
+    #: its ``<path value="..."/>`` elements added while it was parsed, then its own.
     search: list[str]
 
     @property
