@@ -20,6 +20,7 @@ from pathlib import Path
 from .. import __version__
 from ..cache import cache_dir
 from ..core.atomic import check_free_space, remedy
+from ..core.engine import reseeds_each_pass
 from ..core.executor import cluster_address
 from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
@@ -170,18 +171,19 @@ def run(args: argparse.Namespace) -> int:
 
 def _render_cluster(args: argparse.Namespace, sampler, adaptive: bool) -> str | None:
     """The cluster a render's passes run on (``--cluster``, else ``$MCRT_CLUSTER``),
-    or None. Its passes can be tasks only with mcrt's samplers (counter-based:
-    a worker starts any pass exactly; Mitsuba's carry a random state from pass to
-    pass) and without --adaptive: an error with --cluster, in-process (with a
-    note) when the cluster only comes from the environment."""
+    or None. Its passes can be tasks only with samplers a worker can start at any
+    pass (mcrt's, counter-based, and Mitsuba's ``independent``, seeded afresh by
+    every pass; Mitsuba's stratified ones carry a random state from pass to pass)
+    and without --adaptive: an error with --cluster, in-process (with a note)
+    when the cluster only comes from the environment."""
     address = cluster_address(args.cluster)
     if address is None:
         return None
     why = ("--adaptive renders run in one process" if adaptive else
-           None if is_mcrt_sampler(sampler) else
+           None if is_mcrt_sampler(sampler) or reseeds_each_pass(sampler) else
            f"{sampler_name(sampler)} carries its random state from pass to pass, which a "
            f"worker cannot recreate; use one of mcrt's samplers "
-           f"({', '.join(PLUGINS)})")
+           f"({', '.join(PLUGINS)}) or independent")
     if why is None:
         return address
     if args.cluster is not None:
