@@ -121,13 +121,19 @@ def linear_srgb(image: np.ndarray, channels: list[str]) -> np.ndarray:
     raise McrtError(f"cannot show a film with channels {', '.join(channels)} as RGB")
 
 
+def film_base_channels(film: mi.Film) -> list[str]:
+    """The channels an ``hdrfilm`` develops besides AOVs, by its ``pixel_format``
+    (Mitsuba's labels: ``R G B [A]``, ``Y [A]``, ``X Y Z [A]``); empty if unknown."""
+    match = re.search(r"pixel_format = (\w+)", str(film))  # Mitsuba prints "y", "ya", ...
+    return list(_FORMAT_CHANNELS.get(match.group(1), "")) if match else []
+
+
 def in_film_format(film: mi.Film, image: np.ndarray, alpha: bool) -> tuple[np.ndarray, list[str]]:
     """Linear sRGB pixels (H, W, 3, then an alpha channel if ``alpha``) in the
     channels ``film`` develops, as Mitsuba's ``hdrfilm`` forms them: luminance as
     ``Y`` (the Y row of :func:`srgb_to_xyz_matrix`), XYZ through that matrix,
     RGB as it is; the alpha kept where the format has one."""
-    match = re.search(r"pixel_format = (\w+)", str(film))
-    names = list(_FORMAT_CHANNELS.get(match.group(1) if match else "rgb", "RGB"))
+    names = film_base_channels(film) or ["R", "G", "B", "A"]
     rgb = image[..., :3].astype(np.float64)
     if names[0] == "X":
         rgb = rgb @ srgb_to_xyz_matrix().T
@@ -164,8 +170,7 @@ def channel_names(film: mi.Film, count: int, aovs: list[str] | None = None) -> l
     """Names of the developed film's channels (as Mitsuba's bitmap labels them),
     read from the film's pixel format and the integrator's AOVs (asking the
     film for a bitmap would develop it once more)."""
-    match = re.search(r"pixel_format = (\w+)", str(film))
-    base = list(_FORMAT_CHANNELS.get(match.group(1), "")) if match else []
+    base = film_base_channels(film)
     if base and len(base) + len(aovs or []) == count:
         return base + list(aovs or [])
     try:
@@ -382,5 +387,5 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
                        seconds=time.perf_counter() - start)
 
 
-__all__ = ["FilmRender", "StatsRender", "channel_names", "in_film_format", "linear_srgb",
-           "render_film", "render_stats", "srgb_to_xyz_matrix"]
+__all__ = ["FilmRender", "StatsRender", "channel_names", "film_base_channels", "in_film_format",
+           "linear_srgb", "render_film", "render_stats", "srgb_to_xyz_matrix"]

@@ -9,7 +9,6 @@ problem is reported as a one-line :class:`ConfigError`.
 from __future__ import annotations
 
 import logging
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -421,6 +420,7 @@ def check_config(config: StudyConfig) -> None:
 def _check_scene(spec: SceneSpec) -> None:
     """The scene loads, mcrt can drive its integrator, its film suits the study."""
     from ...core.engine import sampling_integrator
+    from ...core.render import film_base_channels
     from ...core.trace import film_grid_size
     from ...render.plan import plan_scene
 
@@ -430,10 +430,10 @@ def _check_scene(spec: SceneSpec) -> None:
     except McrtError as error:
         raise ConfigError(f"scene {spec.name!r}: {error}") from None
     film = scene.sensors()[0].film()  # any filter: references develop with the film's own
-    pixel_format = re.search(r"pixel_format = (\w+)", str(film))
-    if pixel_format and pixel_format.group(1) in ("y", "ya", "luminance", "luminance_alpha"):
-        raise ConfigError(f"scene {spec.name!r}: the film stores luminance only (pixel_format "
-                          f"{pixel_format.group(1)}); the study measures colour errors against "
+    channels = film_base_channels(film)
+    if channels[:1] == ["Y"]:
+        raise ConfigError(f"scene {spec.name!r}: the film stores luminance only (channels "
+                          f"{' '.join(channels)}); the study measures colour errors against "
                           f"an RGB reference: give the film pixel_format rgb")
     width, height = (int(v) for v in film_grid_size(film))
     if min(width, height) < MIN_SIZE:
