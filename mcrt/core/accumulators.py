@@ -26,6 +26,7 @@ from ..errors import McrtError
 from .packed import Packed
 from .reach import FilterReach, TargetSums
 from .trace import CameraSamples, film_grid_size
+from .upload import to_device
 
 if TYPE_CHECKING:
     from .stats import PixelStats
@@ -172,9 +173,8 @@ class FilmAccumulator:
         sums, nonfinite = state["sums"], state["nonfinite"]
         if sums.shape != (h, w, self.channels) or nonfinite.shape != (self.grid[1], self.grid[0]):
             raise McrtError("the saved partial render does not match this film")
-        self.sums = [mi.Float64(np.ascontiguousarray(sums[..., c]).ravel())
-                     for c in range(self.channels)]
-        self.nonfinite = mi.UInt32(nonfinite.astype(np.uint32).ravel())
+        self.sums = [to_device(mi.Float64, sums[..., c]) for c in range(self.channels)]
+        self.nonfinite = to_device(mi.UInt32, nonfinite)
 
     # -- results ----------------------------------------------------------------
     def develop(self) -> Any:
@@ -289,12 +289,10 @@ class MomentsAccumulator:
         w, h = self.grid
         if state["mean"].shape != (h, w, 3):
             raise McrtError("the saved statistics do not match this film")
-        self.count = mi.Float64(state["count"].astype(np.float64).ravel())
-        self.mean = [mi.Float64(np.ascontiguousarray(state["mean"][..., c]).ravel())
-                     for c in range(3)]
-        self.m2 = [mi.Float64(np.ascontiguousarray(state["m2"][..., c]).ravel())
-                   for c in range(3)]
-        self.nonfinite = mi.Float64(state["nonfinite"].astype(np.float64).ravel())
+        self.count = to_device(mi.Float64, state["count"])
+        self.mean = [to_device(mi.Float64, state["mean"][..., c]) for c in range(3)]
+        self.m2 = [to_device(mi.Float64, state["m2"][..., c]) for c in range(3)]
+        self.nonfinite = to_device(mi.Float64, state["nonfinite"])
 
 
 def block_moments(channels: list[mi.Float64], group: int

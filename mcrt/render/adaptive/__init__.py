@@ -70,16 +70,18 @@ The lecture's recipe, made precise:
 
 Modules: :mod:`.settings` (the parameters, declared once), :mod:`.criterion`
 (the error test), :mod:`.ladder` (batch sizes), :mod:`.reconstruct` (multi-level
-reconstruction), :mod:`.engine` (the render loop, checkpoints), :mod:`.result`
+reconstruction), :mod:`.sums` (per-pixel moments and sub-pixel sums),
+:mod:`.engine` (the render loop, checkpoints), :mod:`.result`
 (what a render returns). The ``adaptive`` integrator plugin is
 :mod:`mcrt.render.adaptive_integrator`; the command line's options are in
 :mod:`mcrt.cli._adaptive_args`, the sample-count heat map in :mod:`mcrt.io.heatmap`.
 
-Per-pixel moments are float64 and merged across passes with Chan's formula
-(:func:`mcrt.core.stats.chan_merge`), per pass from
-:func:`mcrt.core.accumulators.block_moments`, so samples that are NaN or infinite are
-left out of the moments and sub-pixels, counted per pixel, and still count
-toward the pixel's budget (a pixel producing only NaN stops at ``max_spp``).
+Per-pixel moments are float64, continued sample by sample with Welford's
+update across passes, and each pixel's sub-pixel sums are formed in sample order
+(:mod:`.sums`: one kernel per wavefront, no merge formula). Samples that are
+NaN or infinite are left out of the moments and sub-pixels, counted per pixel,
+and still count toward the pixel's budget (a pixel producing only NaN stops at
+``max_spp``).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The adaptive render loop: passes over compacted wavefronts of active pixels,
-accumulated float64 moments and sub-pixel sums, Ctrl-C checkpoints, and the
-developed result (see :mod:`mcrt.render.adaptive` for the method)."""
+their sums (:mod:`.sums`), Ctrl-C checkpoints, and the developed result (see
+:mod:`mcrt.render.adaptive` for the method)."""
 
 from __future__ import annotations
 
@@ -14,13 +14,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.accumulators import block_moments, sequential_block_sums
 from ...core.engine import deferred_interrupts, sampling_integrator, supported_film, trace_pass
 from ...core.job import Checkpoint, CheckpointPacer, Interrupted
 from ...core.render import in_film_format
 from ...core.sampling import bind_film_width
-from ...core.stats import PixelStats, chan_merge
+from ...core.stats import PixelStats
 from ...core.trace import CameraSamples, film_grid_size, pixel_of_index
+from ...core.upload import to_device
 from ...errors import McrtError
 from ...samplers._hash import hash_keys_int
 from ...samplers.base import is_mcrt_sampler
@@ -29,69 +29,9 @@ from .ladder import batch_ladder, budget_batches, pass_batch_size
 from .reconstruct import reconstruct, subpixel_filter
 from .result import AdaptiveRender, PassRecord
 from .settings import AdaptiveSettings
+from .sums import Pending, PixelSums
 
 log = logging.getLogger(__name__)
-
-
-class _Accumulator:
-    """Per-pixel float64 moments and sub-pixel sums over the sampled grid (flat)."""
-
-    def __init__(self, pixels: int, s: int, channels: int) -> None:
-        self.count = np.zeros(pixels, np.int64)
-        self.mean = np.zeros((pixels, 3))
-        self.m2 = np.zeros((pixels, 3))
-        self.nonfinite = np.zeros(pixels, np.int64)
-        self.traced = np.zeros(pixels, np.int64)
-        self.sub_sum = np.zeros((pixels, s * s, channels))
-        self.sub_count = np.zeros((pixels, s * s), np.int64)
-        #: Nothing added or restored yet (the sub-pixel grids are still all zero).
-        self.empty = True
-
-    def add(self, ids: np.ndarray, m: int, count, means, m2, bad, sub_count,
-            sub_sums) -> None:
-        """Merge one wavefront's per-pixel moments (Chan) and sub-pixel sums (pixels
-        ``ids``, ``m`` samples each; evaluated Dr.Jit arrays)."""
-        s2 = self.sub_count.shape[1]
-        count = np.asarray(count, dtype=np.float64).astype(np.int64)
-        means = np.stack([np.asarray(x, dtype=np.float64) for x in means], -1)
-        m2 = np.stack([np.asarray(x, dtype=np.float64) for x in m2], -1)
-        n, mean, merged = chan_merge(self.count[ids], self.mean[ids], self.m2[ids],
-                                     count, means, m2)
-        self.count[ids], self.mean[ids], self.m2[ids] = n, mean, merged
-        self.nonfinite[ids] += np.asarray(bad, dtype=np.float64).astype(np.int64)
-        self.traced[ids] += m
-        sub_count = np.asarray(sub_count, dtype=np.int64).reshape(ids.size, s2)
-        sub_sums = np.stack([np.asarray(x, dtype=np.float64) for x in sub_sums],
-                            -1).reshape(ids.size, s2, -1)
-        if self.empty and ids.size == self.count.size:
-            # The first wavefront covers every pixel (ids are sorted and unique): the
-            # grids become its sums (0 + x == x exactly), instead of adding them into
-            # ~20 MB of untouched zero pages (page faults cost more than the adds).
-            self.sub_count, self.sub_sum = sub_count, sub_sums
-        else:
-            self.sub_count[ids] += sub_count
-            self.sub_sum[ids] += sub_sums
-        self.empty = False
-
-    def stats(self) -> PixelStats:
-        return PixelStats(self.count, self.mean, self.m2, self.nonfinite)
-
-    FIELDS = ("count", "mean", "m2", "nonfinite", "traced", "sub_sum", "sub_count")
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Copies of every accumulator array (a snapshot)."""
-        return {name: getattr(self, name).copy() for name in self.FIELDS}
-
-    def nbytes(self) -> int:
-        return sum(getattr(self, name).nbytes for name in self.FIELDS)
-
-    def restore(self, arrays: dict[str, np.ndarray]) -> None:
-        self.empty = False
-        for name in self.FIELDS:
-            mine = getattr(self, name)
-            if arrays[name].shape != mine.shape:
-                raise McrtError("the saved adaptive render does not match this scene")
-            mine[...] = arrays[name]
 
 
 def _sampler_label(sampler: mi.Sampler) -> str:
@@ -142,7 +82,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     width, height = int(grid[0]), int(grid[1])
     pixels = width * height
     s = settings.subpixels
-    acc = _Accumulator(pixels, s, 4 if has_alpha else 3)
+    acc = PixelSums(pixels, s, 4 if has_alpha else 3)
     # leader: samples of a pixel that was active in every pass so far.
     active, batch, leader, k, seconds_before, records = _start(acc, pixels, first, resume)
 
@@ -169,18 +109,18 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
             spent = int(acc.traced.sum())
             sizes = np.unique(batch[active])
             lanes, bad_total = 0, 0
-            staged: list[tuple] = []
+            staged: list[Pending] = []
             for m in sizes.tolist():
                 for c, ids in enumerate(_chunks(active[batch[active] == m], m, settings)):
                     one_wavefront = k == 0 and ids.size == pixels
                     wave_seed = seed if ours or one_wavefront else hash_keys_int(seed, k, m, c)
                     bad_total += _trace_wavefront(scene, sensor_obj, sampler, integrator, film,
-                                                  ids, m, k, wave_seed, ours, first, s,
+                                                  ids, m, k, wave_seed, ours, first,
                                                   acc, staged, on_samples)
                     lanes += ids.size * m
             with deferred_interrupts():
                 for wavefront in staged:
-                    acc.add(*wavefront)
+                    acc.commit(wavefront)
                 _check_progress(acc, spent)
                 leader += int(sizes.max())
                 failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
@@ -212,7 +152,7 @@ def _ladder(sampler: mi.Sampler, settings: AdaptiveSettings) -> tuple[int, ...]:
     return ladder
 
 
-def _check_progress(acc: _Accumulator, spent: int) -> None:
+def _check_progress(acc: PixelSums, spent: int) -> None:
     """Every pass spends samples (budgets only grow: the loop terminates)."""
     if int(acc.traced.sum()) <= spent:
         raise McrtError("adaptive: a pass spent no samples; this is a bug")
@@ -248,7 +188,7 @@ def _integrator_and_settings(
     return integrator, settings
 
 
-def _start(acc: _Accumulator, pixels: int, first: int, resume: Checkpoint | None
+def _start(acc: PixelSums, pixels: int, first: int, resume: Checkpoint | None
            ) -> tuple[np.ndarray, np.ndarray, int, int, float, list[PassRecord]]:
     """The loop's state before its first pass: ``(active, batch, leader, next
     pass, seconds so far, records)``, from ``resume`` if given (restored into
@@ -271,14 +211,15 @@ def _chunks(group: np.ndarray, m: int, settings: AdaptiveSettings) -> list[np.nd
     return [group[lo:lo + per_chunk] for lo in range(0, group.size, per_chunk)]
 
 
-def _next_pass(acc: _Accumulator, leader: int, ladder: tuple[int, ...],
+def _next_pass(acc: PixelSums, leader: int, ladder: tuple[int, ...],
                settings: AdaptiveSettings,
                shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Error test over the whole image, dilation, and the next pass's batches:
     ``(failing, batch, active_next)``; ``leader`` counts the samples of a pixel
     that was active in every pass so far, this one included."""
-    mean_y, se_y = luminance_error(acc.stats())
-    ratio = error_ratio(mean_y, se_y, acc.count, settings)
+    stats = acc.pixel_stats()
+    mean_y, se_y = luminance_error(stats)
+    ratio = error_ratio(mean_y, se_y, stats.count, settings)
     failing = ratio > 1.0
     # Every active pixel gets the pass's batch size (less only where the
     # budget is nearly spent): one wavefront per pass, and a pixel that
@@ -296,8 +237,9 @@ def _next_pass(acc: _Accumulator, leader: int, ladder: tuple[int, ...],
 def _result(film, acc, width, height, s, settings, records, sampler, ladder, has_alpha,
             seconds) -> AdaptiveRender:
     """Develop the accumulated samples into an :class:`AdaptiveRender`."""
-    mean_y, se_y = luminance_error(acc.stats())
-    ratio = error_ratio(mean_y, se_y, acc.count, settings)
+    stats = acc.pixel_stats()
+    mean_y, se_y = luminance_error(stats)
+    ratio = error_ratio(mean_y, se_y, stats.count, settings)
     image, spp, stats, crop = _develop(film, acc, width, height, s)
     se_y = se_y.reshape(height, width)[crop]
     converged = (ratio <= 1.0).reshape(height, width)[crop]
@@ -314,49 +256,28 @@ def _result(film, acc, width, height, s, settings, records, sampler, ladder, has
 
 
 class _Wavefront:
-    """Accumulator of one compacted wavefront (``m`` lanes per pixel of ``ids``):
-    per-pixel moments and sub-pixel sums, each pixel's lanes summed in order
-    (deterministic, no atomics), merged into ``acc`` on commit."""
+    """The sink of one compacted wavefront (``m`` lanes per pixel of ``ids``):
+    its sums are reduced by ``acc`` and staged, merged into ``acc`` by the
+    engine at the end of the pass."""
 
-    def __init__(self, staged: list[tuple], ids: np.ndarray, s: int, on_samples: Any,
-                 k: int) -> None:
-        self.staged, self.ids, self.s, self.on_samples, self.k = staged, ids, s, on_samples, k
-        self.pending: tuple | None = None
+    def __init__(self, acc: PixelSums, staged: list[Pending], ids: np.ndarray,
+                 on_samples: Any, k: int) -> None:
+        self.acc, self.staged, self.ids, self.on_samples, self.k = acc, staged, ids, on_samples, k
+        self.pending: Pending | None = None
         self.bad = 0
 
     def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
-        s, m, ids = self.s, group, self.ids
-        lane = dr.arange(mi.UInt32, ids.size * m)
+        s = self.acc.s
         inside = samples.position - mi.Vector2f(samples.pixel)
         sub = mi.Vector2u(dr.clip(dr.floor(inside * s), 0, s - 1))
         finite = dr.isfinite(values[0]) & dr.isfinite(values[1]) & dr.isfinite(values[2])
-        # Sub-pixel of every lane among the wavefront's ids.size * s^2 sub-pixels.
-        key = (lane // m) * (s * s) + sub.y * s + sub.x
-        dr.eval(values, finite, key, inside if self.on_samples is not None else None)
-        s2, n_values = s * s, len(values)
-
-        def contributions(lane: mi.UInt32) -> list[mi.Float]:
-            cell = dr.gather(mi.UInt32, key, lane) % s2
-            keep = dr.gather(mi.Bool, finite, lane)
-            vals = [dr.gather(mi.Float, v, lane) for v in values]
-            out: list[Any] = []
-            for j in range(s2):
-                hit = keep & (cell == j)
-                out += [dr.select(hit, v, 0.0) for v in vals] + [dr.select(hit, 1.0, 0.0)]
-            return out
-
-        sums = sequential_block_sums(ids.size, m, contributions, s2 * (n_values + 1))
-        per_cell = [sums[j * (n_values + 1):(j + 1) * (n_values + 1)] for j in range(s2)]
-        # Cell-major like the Accumulator's (pixel, sub-pixel) layout.
-        sub_count = np.stack([np.array(c[-1], dtype=np.float64) for c in per_cell], -1)
-        sub_sums = [np.stack([np.array(c[i], dtype=np.float64) for c in per_cell], -1)
-                    for i in range(n_values)]
-        count, means, m2, bad = block_moments([mi.Float64(v) for v in values[:3]], m)
-        dr.eval(count, means, m2, bad)
-        self.pending = (ids, m, count, means, m2, bad, sub_count, sub_sums)
-        self.bad = int(np.asarray(bad, dtype=np.float64).sum())
+        cell = sub.y * s + sub.x
+        dr.eval(values, finite, cell, inside if self.on_samples is not None else None)
+        self.pending = self.acc.reduce(self.ids, group, values, finite, cell)
+        self.bad = self.pending.nonfinite
         if self.on_samples is not None:
-            self.on_samples(self.k, np.repeat(ids, m), np.array(inside, dtype=np.float64).T,
+            self.on_samples(self.k, np.repeat(self.ids, group),
+                            np.array(inside, dtype=np.float64).T,
                             np.array(mi.Color3f(*values[:3]), dtype=np.float64).T)
 
     def commit(self) -> None:
@@ -373,8 +294,8 @@ def _rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[Any]:
 
 
 def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, m: int,
-                     k: int, wave_seed: int, ours: bool, differential_spp: int, s: int,
-                     acc: _Accumulator, staged: list[tuple], on_samples) -> int:
+                     k: int, wave_seed: int, ours: bool, differential_spp: int,
+                     acc: PixelSums, staged: list[Pending], on_samples) -> int:
     """Trace ``m`` new samples of each pixel in ``ids`` (one compacted wavefront)
     with the engine's pass step, its sums appended to ``staged`` (merged into
     ``acc`` by the caller at the end of the pass: a pixel is in one wavefront per
@@ -385,12 +306,12 @@ def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, 
         raise McrtError("adaptive: too many passes for 32-bit sample indices; raise growth")
     # Lanes: m consecutive lanes per active pixel, built in the kernel from the ids.
     lane = dr.arange(mi.UInt32, lanes)
-    pixel_index = dr.gather(mi.UInt32, mi.UInt32(ids.astype(np.uint32)), lane // m)
+    pixel_index = dr.gather(mi.UInt32, to_device(mi.UInt32, ids), lane // m)
     sampler.set_sample_count(m)
     if ours and getattr(sampler, "progressive", False):
         # One sequence per pixel (sobol): this batch continues it where the pixel's
         # previous batches stopped, so its samples so far are always a prefix.
-        start = dr.gather(mi.UInt32, mi.UInt32(acc.traced[ids].astype(np.uint32)), lane // m)
+        start = dr.gather(mi.UInt32, to_device(mi.UInt32, acc.traced[ids]), lane // m)
         sampler.seed_lanes(wave_seed, pixel_index, lane % m + start)
     elif ours:
         # Epoch k of the pixel's sequence at sample count m: a fresh pattern.
@@ -398,7 +319,7 @@ def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, 
     else:
         sampler.set_samples_per_wavefront(m)
         sampler.seed(wave_seed, lanes)
-    wavefront = _Wavefront(staged, ids, s, on_samples, k)
+    wavefront = _Wavefront(acc, staged, ids, on_samples, k)
     # Ray differentials are scaled for the first pass's count in every pass,
     # which keeps one kernel for all passes.
     trace_pass(scene, sensor, integrator, sampler, pixel_of_index(film, pixel_index),
@@ -406,19 +327,20 @@ def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, 
     return wavefront.bad
 
 
-def _develop(film: mi.Film, acc: _Accumulator, width: int, height: int,
+def _develop(film: mi.Film, acc: PixelSums, width: int, height: int,
              s: int) -> tuple[np.ndarray, np.ndarray, PixelStats, tuple[slice, slice]]:
     """Reconstruct the crop window; crop per-pixel arrays to it."""
-    channels = acc.sub_sum.shape[-1]
-    sums = acc.sub_sum.reshape(height, width, s, s, channels)
-    counts = acc.sub_count.reshape(height, width, s, s)
+    sub_sum, sub_count = acc.sub_pixels()
+    sums = sub_sum.reshape(height, width, s, s, acc.channels)
+    counts = sub_count.reshape(height, width, s, s)
     image, _ = reconstruct(sums, counts, subpixel_filter(film.rfilter(), s))
     b = int(film.rfilter().border_size()) if film.sample_border() else 0
     crop = (slice(b, height - b), slice(b, width - b))
-    stats = PixelStats(count=acc.count.reshape(height, width)[crop],
-                       mean=acc.mean.reshape(height, width, 3)[crop],
-                       m2=acc.m2.reshape(height, width, 3)[crop],
-                       nonfinite=acc.nonfinite.reshape(height, width)[crop])
+    stats = acc.pixel_stats()
+    stats = PixelStats(count=stats.count.reshape(height, width)[crop],
+                       mean=stats.mean.reshape(height, width, 3)[crop],
+                       m2=stats.m2.reshape(height, width, 3)[crop],
+                       nonfinite=stats.nonfinite.reshape(height, width)[crop])
     return image[crop], acc.traced.reshape(height, width)[crop], stats, crop
 
 

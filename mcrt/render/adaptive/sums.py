@@ -1,0 +1,200 @@
+"""The adaptive render's per-pixel sums: float64 moments and sub-pixel sums.
+
+One kernel reduces a traced wavefront (``m`` consecutive lanes per pixel): a
+thread per pixel walks its lanes in sample order and
+
+* continues the pixel's moments ``(n, mean, M2)`` with Welford's update, from
+  the values its earlier passes left (so a pixel's moments are one sequential
+  pass over all its samples: no merge formula, the same bits however its
+  samples were split into passes or wavefronts), and
+* adds each lane's value and a count of 1 to its sub-pixel in a local buffer
+  (Dr.Jit's local memory: one indexed add per lane instead of a select per
+  sub-pixel).
+
+A sample with a non-finite R, G or B is left out of both and counted. The
+moments of every pixel live on the host (the error test reads them after every
+pass: 8 float64 per pixel); the sub-pixel sums, ``s * s * (C + 1)`` float64 per
+pixel, stay on the device until the image is developed. A wavefront's results
+are *pending* until :meth:`PixelSums.commit`, which the engine calls for all of
+a pass's wavefronts at its end with interrupts held back, so the sums always
+describe whole passes. The commit adds a pixel's sub-pixel sums to its slots
+with a scatter-add whose targets are all distinct (one pixel is in one
+wavefront per pass), so the result does not depend on thread scheduling.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ...core.stats import PixelStats
+from ...core.upload import to_device
+from ...errors import McrtError
+
+#: Most sub-pixels one reduction kernel sums (its local buffer holds this many
+#: cells of ``C + 1`` float64 per thread); a finer grid (``subpixels`` > 8) is
+#: reduced by several kernels, one per block of cells.
+CELLS_PER_KERNEL = 64
+
+#: Columns of the host's per-pixel moments.
+N, MEAN, M2, BAD = 0, slice(1, 4), slice(4, 7), 7
+STAT_COLUMNS = 8
+
+
+@dataclass
+class Pending:
+    """One reduced wavefront, not yet committed."""
+
+    ids: np.ndarray  # pixel ids (int64)
+    m: int  # samples per pixel
+    stats: np.ndarray  # (ids.size, STAT_COLUMNS): the new moments
+    cells: list[tuple[int, list[mi.Float64]]]  # (first cell, sums per cell x channel)
+    nonfinite: int  # non-finite samples in this wavefront
+
+
+class PixelSums:
+    """Moments and sub-pixel sums of ``pixels`` pixels (``s x s`` sub-pixels,
+    ``channels`` values per sample: R, G, B [, A])."""
+
+    def __init__(self, pixels: int, s: int, channels: int) -> None:
+        self.pixels, self.s, self.channels = pixels, s, channels
+        self.stats = np.zeros((pixels, STAT_COLUMNS))
+        self.traced = np.zeros(pixels, np.int64)
+        self.sub = dr.zeros(mi.Float64, pixels * self.row)
+
+    @property
+    def row(self) -> int:
+        """Float64 per pixel in the sub-pixel sums: ``(value..., count)`` per cell."""
+        return self.s * self.s * (self.channels + 1)
+
+    # -- a pass -------------------------------------------------------------
+    def reduce(self, ids: np.ndarray, m: int, values: Sequence[mi.Float], finite: mi.Bool,
+               cell: Any) -> Pending:
+        """Reduce one wavefront: lanes ``i*m .. i*m+m-1`` are pixel ``ids[i]``'s new
+        samples (``values`` per channel, ``finite``, sub-pixel ``cell``)."""
+        if len(values) != self.channels:
+            raise McrtError(f"adaptive: expected {self.channels} channels, got {len(values)}")
+        prior = self.stats[ids]
+        cells: list[tuple[int, list[mi.Float64]]] = []
+        moments: list[mi.Float64] = []
+        for lo in range(0, self.s * self.s, CELLS_PER_KERNEL):
+            hi = min(lo + CELLS_PER_KERNEL, self.s * self.s)
+            sums, out = _reduce_kernel(prior if lo == 0 else None, ids.size, m, values, finite,
+                                       cell, lo, hi)
+            cells.append((lo, sums))
+            moments = moments or out
+        stats = np.stack([np.asarray(x, dtype=np.float64) for x in moments], -1)
+        return Pending(ids, m, stats, cells,
+                       int(round(stats[:, BAD].sum() - prior[:, BAD].sum())))
+
+    def commit(self, pending: Pending) -> None:
+        """Make ``pending`` current (call with interrupts held back)."""
+        ids = pending.ids
+        self.stats[ids] = pending.stats
+        self.traced[ids] += pending.m
+        base = to_device(mi.UInt32, ids) * self.row
+        width = self.channels + 1
+        for lo, sums in pending.cells:
+            for j, value in enumerate(sums):
+                dr.scatter_add(self.sub, value, base + (lo * width + j))
+        dr.eval(self.sub)
+
+    # -- reading ------------------------------------------------------------
+    def pixel_stats(self) -> PixelStats:
+        """The per-pixel moments (flat arrays over the sampled grid)."""
+        return PixelStats(count=self.stats[:, N].astype(np.int64), mean=self.stats[:, MEAN],
+                          m2=self.stats[:, M2], nonfinite=self.stats[:, BAD].astype(np.int64))
+
+    def sub_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(sums (pixels, s*s, C), counts (pixels, s*s))`` of the sub-pixels."""
+        grid = np.asarray(self.sub, dtype=np.float64).reshape(self.pixels, self.s * self.s,
+                                                              self.channels + 1)
+        return grid[..., :-1], grid[..., -1].astype(np.int64)
+
+    # -- checkpoints --------------------------------------------------------
+    FIELDS = ("count", "mean", "m2", "nonfinite", "traced", "sub_sum", "sub_count")
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Copies of every array (a checkpoint's)."""
+        stats = self.pixel_stats()
+        sub_sum, sub_count = self.sub_pixels()
+        return {"count": stats.count, "mean": stats.mean.copy(), "m2": stats.m2.copy(),
+                "nonfinite": stats.nonfinite, "traced": self.traced.copy(),
+                "sub_sum": sub_sum.copy(), "sub_count": sub_count}
+
+    def nbytes(self) -> int:
+        return self.stats.nbytes + self.traced.nbytes + 8 * self.pixels * self.row
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`arrays` of an identical render."""
+        s2 = self.s * self.s
+        expected = {"count": (self.pixels,), "mean": (self.pixels, 3), "m2": (self.pixels, 3),
+                    "nonfinite": (self.pixels,), "traced": (self.pixels,),
+                    "sub_sum": (self.pixels, s2, self.channels), "sub_count": (self.pixels, s2)}
+        if any(arrays[name].shape != shape for name, shape in expected.items()):
+            raise McrtError("the saved adaptive render does not match this scene")
+        self.stats[:, N] = arrays["count"]
+        self.stats[:, MEAN] = arrays["mean"]
+        self.stats[:, M2] = arrays["m2"]
+        self.stats[:, BAD] = arrays["nonfinite"]
+        self.traced[...] = arrays["traced"]
+        grid = np.concatenate([arrays["sub_sum"], arrays["sub_count"][..., None]], -1)
+        self.sub = to_device(mi.Float64, grid)
+
+
+def _reduce_kernel(prior: np.ndarray | None, pixels: int, m: int, values: Sequence[mi.Float],
+                   finite: mi.Bool, cell: mi.UInt32, lo: int, hi: int
+                   ) -> tuple[list[mi.Float64], list[mi.Float64]]:
+    """One thread per pixel over its ``m`` lanes: the sums of cells ``lo..hi-1``
+    (value channels, then the count, per cell) and, when ``prior`` moments are
+    given, the pixel's moments continued over the lanes (``STAT_COLUMNS`` arrays)."""
+    width = len(values) + 1
+    first = dr.arange(mi.UInt32, pixels) * m
+    local = dr.alloc_local(mi.Float64, (hi - lo) * width, dr.zeros(mi.Float64))
+    columns: list[Any] = []
+    if prior is not None:
+        columns = [to_device(mi.Float64, prior[:, j]) for j in range(STAT_COLUMNS)]
+
+    def body(k: Any, local: Any, *stat: Any) -> tuple[Any, ...]:
+        lane = first + k
+        c = dr.gather(mi.UInt32, cell, lane)
+        keep = dr.gather(mi.Bool, finite, lane)
+        x = [mi.Float64(dr.gather(mi.Float, v, lane)) for v in values]
+        here = keep & (c >= lo) & (c < hi)
+        slot = (c - lo) * width
+        for j in range(width):
+            add = x[j] if j < len(x) else mi.Float64(1.0)
+            local.write(local.read(slot + j, here) + add, slot + j, here)
+        if not stat:
+            return (k + 1, local)
+        return (k + 1, local, *_welford(stat, x[:3], keep))
+
+    state = dr.while_loop((mi.UInt32(0), local, *columns), lambda k, *_: k < m, body)
+    local = state[1]
+    sums = [local[j] for j in range((hi - lo) * width)]
+    stats = list(state[2:])
+    dr.eval(sums, stats)
+    return sums, stats
+
+
+def _welford(stat: Sequence[Any], x: Sequence[Any], keep: Any) -> list[Any]:
+    """The moments ``(n, mean x 3, M2 x 3, nonfinite)`` with sample ``x`` added
+    (where ``keep``; else counted as non-finite)."""
+    n = dr.select(keep, stat[N] + 1.0, stat[N])
+    safe = dr.maximum(n, 1.0)
+    means, m2s = [], []
+    for c in range(3):
+        mean, m2 = stat[1 + c], stat[4 + c]
+        delta = x[c] - mean
+        new_mean = mean + delta / safe
+        means.append(dr.select(keep, new_mean, mean))
+        m2s.append(dr.select(keep, m2 + delta * (x[c] - new_mean), m2))
+    return [n, *means, *m2s, dr.select(keep, stat[BAD], stat[BAD] + 1.0)]
+
+
+__all__ = ["CELLS_PER_KERNEL", "Pending", "PixelSums"]
