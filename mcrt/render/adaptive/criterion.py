@@ -21,8 +21,15 @@ IMAGE_MEAN_QUANTILE = 0.99
 
 def luminance_error(stats: PixelStats) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel mean luminance and the bound ``sum_c w_c se_c`` on its standard
-    error, ``se_c = sqrt(var_c / n)`` the channels' i.i.d. standard errors."""
-    return stats.mean @ LUMINANCE, stats.standard_error @ LUMINANCE
+    error, ``se_c = sqrt(var_c / n)`` the channels' i.i.d. standard errors.
+
+    Elementwise (the same bits for a pixel whichever other pixels are given, so
+    the engine may update only the pixels a pass changed)."""
+    return _luminance(stats.mean), _luminance(stats.standard_error)
+
+
+def _luminance(rgb: np.ndarray) -> np.ndarray:
+    return (rgb[..., 0] * LUMINANCE[0] + rgb[..., 1] * LUMINANCE[1]) + rgb[..., 2] * LUMINANCE[2]
 
 
 def image_mean_luminance(mean_y: np.ndarray, count: np.ndarray) -> float:

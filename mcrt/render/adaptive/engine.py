@@ -24,7 +24,7 @@ from ...core.upload import to_device
 from ...errors import McrtError
 from ...samplers._hash import hash_keys_int
 from ...samplers.base import is_mcrt_sampler
-from .criterion import dilate, error_ratio, luminance_error
+from .criterion import dilate, error_ratio
 from .ladder import batch_ladder, budget_batches, pass_batch_size
 from .reconstruct import reconstruct, subpixel_filter
 from .result import AdaptiveRender, PassRecord
@@ -217,9 +217,8 @@ def _next_pass(acc: PixelSums, leader: int, ladder: tuple[int, ...],
     """Error test over the whole image, dilation, and the next pass's batches:
     ``(failing, batch, active_next)``; ``leader`` counts the samples of a pixel
     that was active in every pass so far, this one included."""
-    stats = acc.pixel_stats()
-    mean_y, se_y = luminance_error(stats)
-    ratio = error_ratio(mean_y, se_y, stats.count, settings)
+    count = acc.pixel_stats().count
+    ratio = error_ratio(acc.mean_y, acc.se_y, count, settings)
     failing = ratio > 1.0
     # Every active pixel gets the pass's batch size (less only where the
     # budget is nearly spent): one wavefront per pass, and a pixel that
@@ -237,11 +236,9 @@ def _next_pass(acc: PixelSums, leader: int, ladder: tuple[int, ...],
 def _result(film, acc, width, height, s, settings, records, sampler, ladder, has_alpha,
             seconds) -> AdaptiveRender:
     """Develop the accumulated samples into an :class:`AdaptiveRender`."""
-    stats = acc.pixel_stats()
-    mean_y, se_y = luminance_error(stats)
-    ratio = error_ratio(mean_y, se_y, stats.count, settings)
+    ratio = error_ratio(acc.mean_y, acc.se_y, acc.pixel_stats().count, settings)
     image, spp, stats, crop = _develop(film, acc, width, height, s)
-    se_y = se_y.reshape(height, width)[crop]
+    se_y = acc.se_y.reshape(height, width)[crop]
     converged = (ratio <= 1.0).reshape(height, width)[crop]
     nonfinite = int(stats.nonfinite.sum())
     if nonfinite:

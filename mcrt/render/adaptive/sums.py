@@ -14,12 +14,13 @@ thread per pixel walks its lanes in sample order and
 A sample with a non-finite R, G or B is left out of both and counted. The
 moments of every pixel live on the host (the error test reads them after every
 pass: 8 float64 per pixel); the sub-pixel sums, ``s * s * (C + 1)`` float64 per
-pixel, stay on the device until the image is developed. A wavefront's results
-are *pending* until :meth:`PixelSums.commit`, which the engine calls for all of
-a pass's wavefronts at its end with interrupts held back, so the sums always
-describe whole passes. The commit adds a pixel's sub-pixel sums to its slots
-with a scatter-add whose targets are all distinct (one pixel is in one
-wavefront per pass), so the result does not depend on thread scheduling.
+pixel (one array over all pixels for each), stay on the device until the image
+is developed. A wavefront's results are *pending* until
+:meth:`PixelSums.commit`, which the engine calls for all of a pass's wavefronts
+at its end with interrupts held back, so the sums always describe whole passes.
+The commit adds a pixel's sub-pixel sums to its slots by gather, add and scatter
+(no atomics: one pixel is in one wavefront per pass, so each slot is written
+once), so the result does not depend on thread scheduling.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import numpy as np
 from ...core.stats import PixelStats
 from ...core.upload import to_device
 from ...errors import McrtError
+from .criterion import luminance_error
 
 #: Most sub-pixels one reduction kernel sums (its local buffer holds this many
 #: cells of ``C + 1`` float64 per thread); a finer grid (``subpixels`` > 8) is
@@ -65,7 +67,15 @@ class PixelSums:
         self.pixels, self.s, self.channels = pixels, s, channels
         self.stats = np.zeros((pixels, STAT_COLUMNS))
         self.traced = np.zeros(pixels, np.int64)
-        self.sub = dr.zeros(mi.Float64, pixels * self.row)
+        #: Per-pixel mean luminance and its standard error (the error test's
+        #: inputs, :func:`~.criterion.luminance_error`), updated for the pixels
+        #: each commit changes.
+        self.mean_y = np.zeros(pixels)
+        self.se_y = np.zeros(pixels)
+        #: Sub-pixel sums, one array over all pixels per (cell, value... count).
+        self.planes = [dr.zeros(mi.Float64, pixels) for _ in range(self.row)]
+        #: Nothing committed or restored yet (the planes are still zero).
+        self.empty = True
 
     @property
     def row(self) -> int:
@@ -97,23 +107,34 @@ class PixelSums:
         ids = pending.ids
         self.stats[ids] = pending.stats
         self.traced[ids] += pending.m
-        base = to_device(mi.UInt32, ids) * self.row
-        width = self.channels + 1
-        for lo, sums in pending.cells:
-            for j, value in enumerate(sums):
-                dr.scatter_add(self.sub, value, base + (lo * width + j))
-        dr.eval(self.sub)
+        self.mean_y[ids], self.se_y[ids] = luminance_error(self.pixel_stats(ids))
+        sums = [value for _, block in pending.cells for value in block]
+        if self.empty and ids.size == self.pixels:
+            # A first wavefront of every pixel (ids are unique and sorted: 0, 1, ...):
+            # its sums are the planes (0 + x == x), no kernel.
+            self.planes = sums
+        else:
+            index = to_device(mi.UInt32, ids)
+            new = [dr.gather(mi.Float64, plane, index) + value
+                   for plane, value in zip(self.planes, sums)]
+            for plane, value in zip(self.planes, new):
+                dr.scatter(plane, value, index, mode=dr.ReduceMode.Permute)
+            dr.eval(self.planes)
+        self.empty = False
 
     # -- reading ------------------------------------------------------------
-    def pixel_stats(self) -> PixelStats:
-        """The per-pixel moments (flat arrays over the sampled grid)."""
-        return PixelStats(count=self.stats[:, N].astype(np.int64), mean=self.stats[:, MEAN],
-                          m2=self.stats[:, M2], nonfinite=self.stats[:, BAD].astype(np.int64))
+    def pixel_stats(self, ids: np.ndarray | None = None) -> PixelStats:
+        """The per-pixel moments (flat arrays over the sampled grid, or of the
+        pixels ``ids``)."""
+        stats = self.stats if ids is None else self.stats[ids]
+        return PixelStats(count=stats[:, N].astype(np.int64), mean=stats[:, MEAN],
+                          m2=stats[:, M2], nonfinite=stats[:, BAD].astype(np.int64))
 
     def sub_pixels(self) -> tuple[np.ndarray, np.ndarray]:
         """``(sums (pixels, s*s, C), counts (pixels, s*s))`` of the sub-pixels."""
-        grid = np.asarray(self.sub, dtype=np.float64).reshape(self.pixels, self.s * self.s,
-                                                              self.channels + 1)
+        planes = [np.asarray(p, dtype=np.float64) for p in self.planes]
+        grid = np.stack(planes, -1)
+        grid = grid.reshape(self.pixels, self.s * self.s, self.channels + 1)
         return grid[..., :-1], grid[..., -1].astype(np.int64)
 
     # -- checkpoints --------------------------------------------------------
@@ -143,8 +164,11 @@ class PixelSums:
         self.stats[:, M2] = arrays["m2"]
         self.stats[:, BAD] = arrays["nonfinite"]
         self.traced[...] = arrays["traced"]
+        self.mean_y, self.se_y = luminance_error(self.pixel_stats())
         grid = np.concatenate([arrays["sub_sum"], arrays["sub_count"][..., None]], -1)
-        self.sub = to_device(mi.Float64, grid)
+        grid = grid.reshape(self.pixels, self.row)
+        self.planes = [to_device(mi.Float64, grid[:, j]) for j in range(self.row)]
+        self.empty = False
 
 
 def _reduce_kernel(prior: np.ndarray | None, pixels: int, m: int, values: Sequence[mi.Float],
