@@ -446,3 +446,16 @@ def test_layout_rules():
         resolve(big, 16, None, False)  # without the probe: refuse, never guess
     with pytest.raises(SamplerError):
         resolve(100, 16, 16, True)
+
+
+@pytest.mark.parametrize("name, limit", [("zsobol", 1 << 16), ("jittered", 1 << 20),
+                                         ("poisson_disk", 16384)])
+def test_a_count_beyond_the_patterns_limit_is_refused_with_a_remedy(name, limit):
+    """The limit is the whole render's count (passes continue one pattern), so
+    the error points at what helps: independent seeds, or sobol."""
+    from mcrt.core.sampling import make_sampler
+
+    assert make_sampler(name, limit).sample_count() == limit
+    with pytest.raises(SamplerError, match=rf"{name}: at most {limit} samples per pixel \(.+\), "
+                                           rf"got {limit + 1}; .*different seeds, or use sobol"):
+        make_sampler(name, limit + 1)

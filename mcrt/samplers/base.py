@@ -88,6 +88,14 @@ class McrtSampler(mi.Sampler):
         """The sample count actually used for a requested ``spp`` (override)."""
         return spp
 
+    def _too_many(self, limit: int, spp: int, why: str) -> SamplerError:
+        """The error for a sample count beyond the pattern's ``limit`` (``why``: what
+        bounds it). The count is the whole render's: splitting it into passes does
+        not help, independent renders with different seeds do."""
+        return SamplerError(f"{self.plugin_name}: at most {limit} samples per pixel ({why}), "
+                            f"got {spp}; for more, average renders with different seeds, "
+                            f"or use sobol")
+
     def _sample_count_changed(self, spp: int) -> None:
         """Hook called after the sample count changed (override)."""
 

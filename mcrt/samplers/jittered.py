@@ -79,8 +79,7 @@ class JitteredSampler(McrtSampler):
     def _effective_count(self, spp: int) -> int:
         k = math.isqrt(spp - 1) + 1 if spp > 1 else 1
         if k * k > MAX_STRATA:
-            raise SamplerError(f"{self.plugin_name}: at most {MAX_STRATA} samples per pixel "
-                               f"per pass, got {spp}; render in passes instead")
+            raise self._too_many(MAX_STRATA, spp, "one stratified pattern per pixel")
         if k * k != spp:
             log.warning("%s: sample count %d is not a square, rounding up to %d",
                         self.plugin_name, spp, k * k)

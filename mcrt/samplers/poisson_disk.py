@@ -5,7 +5,6 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..errors import SamplerError
 from ._hash import hash_extend, permute
 from ._stratified import epoch_key, split_sample, stratified_1d
 from ._types import Mask
@@ -90,8 +89,7 @@ class PoissonDiskSampler(McrtSampler):
         from .poisson_tables import MAX_POINTS
 
         if spp > MAX_POINTS:
-            raise SamplerError(f"{self.plugin_name}: at most {MAX_POINTS} samples per pixel "
-                               f"per pass, got {spp}; render in passes instead")
+            raise self._too_many(MAX_POINTS, spp, "its largest precomputed point set")
         return spp
 
     def _sample_count_changed(self, spp: int) -> None:

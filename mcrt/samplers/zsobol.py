@@ -161,8 +161,8 @@ class ZSobolSampler(McrtSampler):
     def _effective_count(self, spp: int) -> int:
         count = 1 << (spp - 1).bit_length()
         if count > 1 << 16:
-            raise SamplerError(f"{self.plugin_name}: at most 65536 samples per pixel per pass, "
-                               f"got {spp}; render in passes instead")
+            raise self._too_many(1 << 16, spp, "its Morton index keeps 16 bits per pixel "
+                                                     "for the sample")
         if count != spp:
             log.warning("%s: sample count %d is not a power of two, rounding up to %d",
                         self.plugin_name, spp, count)
