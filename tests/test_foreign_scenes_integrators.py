@@ -194,3 +194,50 @@ def test_study_refuses_luminance_films_in_one_line(tmp_path):
     with pytest.raises(ConfigError, match="luminance") as info:
         load_config(toml)
     assert "\n" not in str(info.value)
+
+
+_CAMERA = """<sensor type="perspective">
+  <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/></film>
+</sensor>"""
+
+
+@pytest.mark.parametrize("body, cause, hint", [
+    ('<shape type="sphere"><emitter type="area"><spectrum type="blackbody" name="radiance">'
+     '<float name="temperature" value="3000"/></spectrum></emitter></shape>',
+     "BlackBodySpectrum: Not implemented for non-spectral modes", "--variant llvm_ad_spectral"),
+    ('<shape type="rectangle"><bsdf type="bumpmap"><texture type="checkerboard" '
+     'name="arbitrary"/><bsdf type="diffuse"/></bsdf></shape>'
+     '<emitter type="constant"/>',
+     "Texture: Texture::eval_1_grad(): not implemented!", None)])
+def test_a_plugin_mitsuba_cannot_evaluate_is_a_one_line_scene_error(tmp_path, capsys, body,
+                                                                    cause, hint):
+    """Scenes that load but that Mitsuba cannot render in this variant (mi.render
+    raises too): one line naming the plugin's own message, exit status 2, for a
+    fixed and an adaptive render; with a hint where a spectral variant would do."""
+    scene = tmp_path / "scene.xml"
+    scene.write_text(f'<scene version="3.0.0"><integrator type="path"/>{_CAMERA}{body}</scene>')
+    with pytest.raises(RuntimeError):
+        mi.render(mi.load_file(str(scene)), spp=1)
+    for extra in ([], ["--adaptive"]):
+        code, _, err = run_cli(capsys, "render", str(scene), "--spp", "16", "-q",
+                               "-o", str(tmp_path / "out"), *extra)
+        assert code == 2 and err.count("\n") == 1, err
+        assert err.startswith("mcrt: error: Mitsuba cannot render this scene") and cause in err
+        assert (hint in err) if hint else "variant" not in err
+
+
+def test_other_runtime_errors_while_tracing_keep_their_traceback():
+    """Only a Mitsuba plugin's refusal ('[Class] message') becomes a scene error:
+    anything else raised inside an integrator is a bug and propagates as is."""
+    from mcrt.core.trace import integrator_sample
+
+    class Broken(mi.SamplingIntegrator):
+        def sample(self, scene, sampler, ray, medium, active):
+            raise RuntimeError("an integrator bug")
+
+    scene = _load(SPHERE, width=4, height=4, spp=1)
+    ray = mi.RayDifferential3f(mi.Point3f(0, 0, 0), mi.Vector3f(0, 0, 1))
+    with pytest.raises(RuntimeError, match="an integrator bug"):
+        integrator_sample(Broken(mi.Properties()), scene, mi.load_dict({"type": "independent"}),
+                          ray)

@@ -13,11 +13,14 @@ CIE curves, a monochrome value copied into the three channels.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
 import mitsuba as mi
+
+from ..errors import SceneError
 
 
 @dataclass
@@ -85,17 +88,46 @@ def integrator_sample(integrator: mi.SamplingIntegrator, scene: mi.Scene, sample
     Mitsuba's differentiable integrators are driven the way their own
     ``render()`` drives them: primal mode, no adjoint, no incoming state,
     derivatives suspended, and no sensor medium (they do not support one).
+    A Mitsuba plugin that cannot evaluate what the scene asks of it (a
+    spectral-only emitter in an RGB variant, a bump map over a texture without
+    gradients, ...) fails here; that is a :class:`~mcrt.errors.SceneError`,
+    since ``mi.render`` fails the same way.
     """
-    if is_differentiable(integrator):
-        differentiable: Any = integrator  # a Python class: its sample() is not the stub's
-        with dr.suspend_grad():
-            result: Any = differentiable.sample(
-                mode=dr.ADMode.Primal, scene=scene, sampler=sampler, ray=ray,
-                depth=mi.UInt32(0), δL=None, δaovs=None, state_in=None,
-                active=mi.Bool(active))
-        return result[0], result[1], list(result[2])
-    spec, valid, aovs = integrator.sample(scene, sampler, ray, medium, active)
+    try:
+        if is_differentiable(integrator):
+            differentiable: Any = integrator  # a Python class: its sample() is not the stub's
+            with dr.suspend_grad():
+                result: Any = differentiable.sample(
+                    mode=dr.ADMode.Primal, scene=scene, sampler=sampler, ray=ray,
+                    depth=mi.UInt32(0), δL=None, δaovs=None, state_in=None,
+                    active=mi.Bool(active))
+            return result[0], result[1], list(result[2])
+        spec, valid, aovs = integrator.sample(scene, sampler, ray, medium, active)
+    except RuntimeError as error:
+        raise _plugin_error(error) from error
     return spec, valid, list(aovs)
+
+
+#: How Mitsuba's C++ plugins word an error: ``[ClassName] message``.
+_PLUGIN_ERROR = re.compile(r"^\[(\w+)\] (.+)", re.S)
+
+
+def _plugin_error(error: RuntimeError) -> Exception:
+    """``error`` as a :class:`SceneError` when, at its root (Dr.Jit wraps the
+    errors raised inside its loops and calls), a Mitsuba plugin refused to
+    evaluate something; else ``error`` itself (a bug, with its traceback)."""
+    root: BaseException = error
+    while root.__cause__ is not None:
+        root = root.__cause__
+    found = _PLUGIN_ERROR.match(str(root).strip()) if isinstance(root, RuntimeError) else None
+    if found is None:
+        return error
+    message = " ".join(found.group(2).split())
+    hint = ""
+    if "non-spectral" in message:
+        hint = "; render it with a spectral variant, e.g. --variant llvm_ad_spectral"
+    return SceneError(f"Mitsuba cannot render this scene ({found.group(1)}: {message}; "
+                      f"mi.render fails the same way){hint}")
 
 
 def trace(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler,
