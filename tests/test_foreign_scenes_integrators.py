@@ -241,3 +241,18 @@ def test_other_runtime_errors_while_tracing_keep_their_traceback():
     with pytest.raises(RuntimeError, match="an integrator bug"):
         integrator_sample(Broken(mi.Properties()), scene, mi.load_dict({"type": "independent"}),
                           ray)
+
+
+def test_an_adjoint_integrator_is_refused_by_plan_and_render_in_one_line(tmp_path, capsys):
+    """ptracer traces from the lights and splats onto the film: the engine cannot
+    drive it, and ``mcrt plan`` says so too instead of describing a render that
+    would then fail (it listed 'film 2D, then whatever ptracer draws')."""
+    scene = tmp_path / "ptracer.xml"
+    scene.write_text(f'<scene version="3.0.0"><integrator type="ptracer"/>{_CAMERA}'
+                     f'<shape type="sphere"><emitter type="area"/></shape></scene>')
+    for argv in (["plan", str(scene)], ["render", str(scene), "-q", "-o", str(tmp_path / "o")]):
+        code, out, err = run_cli(capsys, *argv)
+        assert code == 2 and err.count("\n") == 1 and out == "", (argv, err)
+        assert "ParticleTracerIntegrator (an adjoint integrator" in err
+        assert "render it with mi.render" in err
+    assert not list(tmp_path.glob("o*"))

@@ -147,8 +147,12 @@ def sampling_integrator(scene: mi.Scene) -> mi.SamplingIntegrator:
     """The scene's integrator, checked to be one the engine can drive."""
     integrator = scene.integrator()
     if not isinstance(integrator, mi.SamplingIntegrator):
+        adjoint = isinstance(integrator, mi.AdjointIntegrator)
         raise McrtError(f"mcrt renders with sampling integrators (path, direct, ...); this scene "
-                        f"uses {type(integrator).__name__}")
+                        f"uses {integrator.class_name()}"
+                        + (" (an adjoint integrator: it traces from the lights and splats onto "
+                           "the film)" if adjoint else "")
+                        + "; render it with mi.render, or give it a sampling integrator")
     if integrator.class_name() == "StokesIntegrator":
         # Checked in Mitsuba 3.9.1: the binding of its sample() ends the process
         # with a segmentation fault, so it must never be called.

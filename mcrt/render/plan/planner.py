@@ -14,6 +14,7 @@ from pathlib import Path
 
 import mitsuba as mi
 
+from ...core.engine import sampling_integrator
 from ...core.sampling import sampler_name
 from ...errors import SceneError
 from ..motion import SUBFRAME_STEP_PX
@@ -58,6 +59,7 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
     facts = SceneFacts.built(described, _instantiate(desc))
     decide_measured(decisions, facts)
     scene = _instantiate(desc) if edit_built(facts, decisions) else facts.scene
+    sampling_integrator(scene)  # one the engine drives (not ptracer, stokes, ...), or say so
     bake_pose(scene, decisions, facts.shutter[0])
 
     sampler = scene.sensors()[0].sampler()
