@@ -111,6 +111,14 @@ Z_THRESHOLD = 5.0
 #: Smallest image side the measures accept (cells must hold frequency bins).
 MIN_SIZE = 2 * DEFAULT_CELLS
 
+#: The verdict of an image too small to measure (a side under :data:`MIN_SIZE`).
+UNMEASURED = "n/a"
+
+
+def measurable(shape: tuple[int, ...]) -> bool:
+    """Whether an image of ``shape`` (H, W[, C]) is large enough to measure."""
+    return min(shape[:2]) >= MIN_SIZE
+
 #: Whitening of a filtered error: the filter's noise spectrum is floored at this
 #: share of its peak (amplifies by at most 1 / sqrt of it).
 WHITEN_FLOOR = 1e-3
@@ -289,9 +297,20 @@ class AliasingScore:
     def peak_z(self) -> float:
         return _z(self.peak, self.peak_null_mean, self.peak_null_sd)
 
+    @classmethod
+    def unmeasured(cls, cutoff: float = DEFAULT_CUTOFF, cells: int = DEFAULT_CELLS,
+                   null_draws: int = DEFAULT_NULL_DRAWS) -> AliasingScore:
+        """The score of an image too small to measure: every value NaN, verdict
+        :data:`UNMEASURED`."""
+        nan = float("nan")
+        return cls(nan, nan, nan, nan, nan, nan, cutoff, cells, null_draws)
+
     @property
     def verdict(self) -> str:
-        """``aliased`` (structured error), ``blue`` (low frequencies depleted) or ``noise``."""
+        """``aliased`` (structured error), ``blue`` (low frequencies depleted) or
+        ``noise``; :data:`UNMEASURED` for an image too small to measure."""
+        if np.isnan(self.ratio):
+            return UNMEASURED
         if self.ratio_z > Z_THRESHOLD or self.peak_z > Z_THRESHOLD:
             return "aliased"
         if self.ratio_z < -Z_THRESHOLD:
@@ -405,5 +424,5 @@ def white_noise_ratio_sd(shape: tuple[int, int], cutoff: float = DEFAULT_CUTOFF)
 
 
 __all__ = ["AliasingScore", "DEFAULT_CELLS", "DEFAULT_CUTOFF", "DEFAULT_NULL_DRAWS",
-           "MIN_SIZE", "Z_THRESHOLD", "aliasing_score", "error_spectrum", "low_band_ratio",
-           "peak_to_median", "white_noise_ratio_sd"]
+           "MIN_SIZE", "UNMEASURED", "Z_THRESHOLD", "aliasing_score", "error_spectrum",
+           "low_band_ratio", "measurable", "peak_to_median", "white_noise_ratio_sd"]

@@ -283,8 +283,7 @@ def summary_figure(result: StudyResult, scene: str | None = None,
         ax.set_yticks([])
         image = ax.imshow(c.error, cmap="RdBu_r", vmin=-lim, vmax=lim, interpolation="nearest")
         cell = result.cell(scene, label, config.image_spp)
-        ax.set_title(f"{label}: {cell['aliasing']} (z {round(cell['aliasing_ratio_z'])}/"
-                     f"{round(cell['aliasing_peak_z'])})\nMSE {cell['mse_excess']:.2e}, "
+        ax.set_title(f"{label}: {_verdict_z(cell)}\nMSE {cell['mse_excess']:.2e}, "
                      f"{cell['seconds'] * 1e3:.0f} ms", fontsize=8)
     if image is not None:
         cax = fig.add_axes(((width / 2 - 200) / width, 45 / height, 400 / width, 10 / height))
@@ -294,6 +293,14 @@ def summary_figure(result: StudyResult, scene: str | None = None,
                        f"spp, seed {config.seeds[0]}; aliasing verdict with its "
                        f"(ratio / peak) z-scores", fontsize=8)
     return fig
+
+
+def _verdict_z(cell: dict[str, Any]) -> str:
+    """A cell's aliasing verdict with its (ratio / peak) z-scores, when it has them."""
+    ratio_z, peak_z = cell["aliasing_ratio_z"], cell["aliasing_peak_z"]
+    if not (math.isfinite(ratio_z) and math.isfinite(peak_z)):
+        return str(cell["aliasing"])
+    return f"{cell['aliasing']} (z {round(ratio_z)}/{round(peak_z)})"
 
 
 def scene_floor(result: StudyResult, scene: str) -> float:
@@ -356,9 +363,7 @@ def images_figure(result: StudyResult, scene: str) -> Figure:
         ax = axes_at(row, 1)
         err_image = ax.imshow(c.error, cmap="RdBu_r", vmin=-err_lim, vmax=err_lim,
                               interpolation="nearest")
-        ax.set_title(f"MSE {cell['mse_excess']:.2e}, {cell['aliasing']} "
-                     f"(z {round(cell['aliasing_ratio_z'])}/{round(cell['aliasing_peak_z'])})",
-                     fontsize=8)
+        ax.set_title(f"MSE {cell['mse_excess']:.2e}, {_verdict_z(cell)}", fontsize=8)
         ax = axes_at(row, 2)
         std_image = ax.imshow(c.std, cmap="magma", vmin=0, vmax=std_lim,
                               interpolation="nearest")

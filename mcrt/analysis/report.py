@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_path, ensure_writable_dir
+from .aliasing import UNMEASURED
 from .plots import error_figure, images_figure, save_figure, summary_figure
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
 from .study.fields import CELL_COLUMNS, CSV_COLUMNS, DEFINITIONS, FIT_COLUMNS, Field
@@ -215,6 +216,8 @@ def _verdicts(cells: list[dict[str, Any]]) -> str:
     """The aliasing verdicts of a sampler's cells in words."""
     aliased = [str(c["spp"]) for c in cells if c["aliasing"] == "aliased"]
     blue = [str(c["spp"]) for c in cells if c["aliasing"] == "blue"]
+    if all(c["aliasing"] == UNMEASURED for c in cells):
+        return UNMEASURED
     verdict = []
     if aliased:
         verdict.append(f"aliased at {', '.join(aliased)} spp")

@@ -28,7 +28,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, Z_THRESHOLD
+from ..aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, MIN_SIZE, UNMEASURED, Z_THRESHOLD
 from ..metrics import REL_MSE_EPSILON
 
 #: A cell whose MSE is below this multiple of the reference's noise floor cannot
@@ -121,7 +121,8 @@ CELL_FIELDS: tuple[Field, ...] = (
                              "of the per-pixel errors (independent pixel errors of the same "
                              "magnitudes)", term="aliasing_*_z"),
     Field("aliasing", f"'aliased' if either z (mean over seeds) > {Z_THRESHOLD:g}, 'blue' if "
-                      f"the ratio's z < -{Z_THRESHOLD:g}, else 'noise'",
+                      f"the ratio's z < -{Z_THRESHOLD:g}, else 'noise'; '{UNMEASURED}' (and the "
+                      f"four measures NaN) for an image under {MIN_SIZE} pixels on a side",
           column=Column("verdict", "text")),
     Field("nonfinite"),
     Field("per_seed", csv=False),

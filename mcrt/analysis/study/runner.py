@@ -23,7 +23,7 @@ from ...core.job import Job, run_job
 from ...core.progress import Progress
 from ...core.stats import PixelStats
 from ...errors import McrtError
-from ..aliasing import aliasing_score
+from ..aliasing import AliasingScore, aliasing_score, measurable
 from ..filter_noise import filter_correlation, variance_factor
 from ..metrics import REL_MSE_EPSILON, delta_e_2000, error_map, mse, reference_noise_floor, rel_mse
 from .config import WARMUP_SEED, SamplerSpec, SceneSpec, StudyConfig, cell_keys, check_config
@@ -279,8 +279,10 @@ def score_seed(rgb32: np.ndarray, reference: np.ndarray, seed: int, spp: int, se
                         f"{reference.shape}")
     bad = np.logical_not(np.all(np.isfinite(rgb), axis=-1))
     clean = np.where(bad[..., None], reference, rgb) if bad.any() else rgb
+    # An image under 32 pixels on a side has no aliasing score (n/a), only errors.
     score = aliasing_score(error_map(clean, reference), null_draws=draws, seed=seed,
-                           correlation=correlation)
+                           correlation=correlation) if measurable(rgb.shape) \
+        else AliasingScore.unmeasured(null_draws=draws)
     return {"seed": seed, "spp": int(spp), "seconds": seconds,
             "mse": mse(clean, reference), "rel_mse": rel_mse(clean, reference),
             "delta_e": delta_e_2000(clean, reference),

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ...core.stats import PixelStats
-from ..aliasing import Z_THRESHOLD
+from ..aliasing import UNMEASURED, Z_THRESHOLD
 from ..convergence import efficiency, fit_loglog
 from ..metrics import bias, error_map, mse, variance_map
 from .config import SamplerSpec
@@ -57,6 +57,8 @@ def _mean(per_seed: list[dict[str, Any]], key: str) -> float:
 
 
 def _verdict(ratio_z: float, peak_z: float) -> str:
+    if np.isnan(ratio_z):  # the image is too small to measure
+        return UNMEASURED
     if ratio_z > Z_THRESHOLD or peak_z > Z_THRESHOLD:
         return "aliased"
     return "blue" if ratio_z < -Z_THRESHOLD else "noise"
