@@ -138,8 +138,6 @@ class PixelSums:
         return grid[..., :-1], grid[..., -1].astype(np.int64)
 
     # -- checkpoints --------------------------------------------------------
-    FIELDS = ("count", "mean", "m2", "nonfinite", "traced", "sub_sum", "sub_count")
-
     def arrays(self) -> dict[str, np.ndarray]:
         """Copies of every array (a checkpoint's)."""
         stats = self.pixel_stats()
