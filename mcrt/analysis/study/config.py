@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ...errors import McrtError
-from ..aliasing import MIN_SIZE
+from ..aliasing import MIN_SIZE, measurable
 
 log = logging.getLogger("mcrt.compare")
 
@@ -433,7 +433,7 @@ def _check_scene(spec: SceneSpec) -> None:
                           f"{' '.join(channels)}); the study measures colour errors against "
                           f"an RGB reference: give the film pixel_format rgb")
     width, height = (int(v) for v in film.crop_size())  # the image the study measures
-    if min(width, height) < MIN_SIZE:
+    if not measurable((height, width)):
         log.info("scene %r renders %dx%d pixels: its cells get no aliasing score (n/a; the "
                  "measure needs %dx%d), the errors are measured as usual", spec.name, width,
                  height, MIN_SIZE, MIN_SIZE)
