@@ -12,6 +12,12 @@
 3. **The light's rim rows** on that Cornell box, where neighbouring pixels integrate
    the same sliver of the light: does a quad's pair of pixels in such a row cancel,
    against the least a pair stratified together could reach (8x the seeds)?
+4. **Random straight edges** (film points, 64x64 pixels, a random edge per 2x2 quad, 8x
+   the seeds): the variance of a quad's summed error against its four pixels', when the
+   four pixels see the *same* edge (the best case for screen-space cancellation) and when
+   one edge *crosses* the quad (what an image's edges do), next to the least a quad whose
+   4N points form one net can reach on the same edge, ``4 V(4N) / V(N)`` with ``V`` the
+   variance of ``sobol``'s N-point estimate (1/2 when ``V`` falls as ``N^-1.5``).
 
     python benchmarks/zsobol_blue_noise.py [--seeds 8]     # ~1 min
 """
@@ -136,6 +142,54 @@ def rim_rows(seeds: int) -> None:
                       f"{share:.2f} |", flush=True)
 
 
+def _edge_estimates(points: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Per pixel, the mean over its points of the indicator ``normal . x < offset``
+    (``points``: pixels x N x 2; ``normal``, ``offset``: per pixel)."""
+    return ((points @ normal[..., None])[..., 0] < offset[:, None]).mean(axis=1)
+
+
+def random_edges(seeds: int) -> None:
+    """Quad-sum variance over pixel variances on random straight edges (no reference
+    needed: variances over seeds). Edge: a uniform direction through a uniform point of
+    the pixel (``same``: one edge in every pixel's own coordinates) or of the 2x2 quad
+    (``crossing``: one edge in the quad's coordinates)."""
+    rng = np.random.default_rng(7)
+    quads = (WIDTH // 2) ** 2
+    angle = rng.uniform(0.0, 2.0 * np.pi, quads)
+    normal_q = np.stack([np.cos(angle), np.sin(angle)], -1)
+    through = rng.random((quads, 2))
+    y, x = np.divmod(np.arange(WIDTH * WIDTH), WIDTH)
+    quad = (y // 2) * (WIDTH // 2) + x // 2
+    corner = np.stack([x % 2, y % 2], -1).astype(np.float64)
+    normal = normal_q[quad]
+    same = (normal * through[quad]).sum(-1)
+    crossing = (normal * (2.0 * through[quad] - corner)).sum(-1)
+
+    def ratio(estimates: np.ndarray) -> float:  # seeds x pixels
+        sums = np.zeros((estimates.shape[0], quads))
+        np.add.at(sums.T, quad, estimates.T)
+        return float(sums.var(axis=0, ddof=1).sum() / estimates.var(axis=0, ddof=1).sum())
+
+    print("\n| spp | sampler | same edge in the quad's 4 pixels | one edge crossing the quad "
+          "| least for a quad whose 4N points are one net (same edge) |")
+    print("|---:|---|---:|---:|---:|")
+    for spp in (4, 16):
+        variance = {}
+        for n in (spp, 4 * spp):  # V(N) and V(4N) of sobol on the "same" edges
+            est = np.stack([_edge_estimates(point_sets("sobol", range(WIDTH * WIDTH), n,
+                                                       seed=seed).astype(np.float64),
+                                            normal, same) for seed in range(seeds)])
+            variance[n] = est.var(axis=0, ddof=1).sum()
+        least = 4.0 * variance[4 * spp] / variance[spp]
+        for name, params in SAMPLERS:
+            sets = [point_sets(name, range(WIDTH * WIDTH), spp, seed=seed,
+                               **params).astype(np.float64) for seed in range(seeds)]
+            alike = np.stack([_edge_estimates(p, normal, same) for p in sets])
+            across = np.stack([_edge_estimates(p, normal, crossing) for p in sets])
+            print(f"| {spp} | {name} | {ratio(alike):.2f} | {ratio(across):.2f} | "
+                  f"{least:.2f} |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=8)
@@ -143,6 +197,7 @@ def main() -> None:
     smooth_integrand()
     cornell(args.seeds)
     rim_rows(8 * args.seeds)
+    random_edges(8 * args.seeds)
 
 
 if __name__ == "__main__":
