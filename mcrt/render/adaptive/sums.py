@@ -18,9 +18,11 @@ pixel (one array over all pixels for each), stay on the device until the image
 is developed. A wavefront's results are *pending* until
 :meth:`PixelSums.commit`, which the engine calls for all of a pass's wavefronts
 at its end with interrupts held back, so the sums always describe whole passes.
-The commit adds a pixel's sub-pixel sums to its slots by gather, add and scatter
-(no atomics: one pixel is in one wavefront per pass, so each slot is written
-once), so the result does not depend on thread scheduling.
+The commit adds a pixel's sub-pixel sums to its slots with one scatter-add per
+plane: one pixel is in one wavefront per pass, so each slot gets exactly one
+addition per commit (no contention, the same bits as a gather, add and scatter,
+whatever the thread scheduling), and the planes are updated in place (a scatter
+into a plane that a pending gather still reads would copy the whole plane first).
 """
 
 from __future__ import annotations
@@ -115,10 +117,8 @@ class PixelSums:
             self.planes = sums
         else:
             index = to_device(mi.UInt32, ids)
-            new = [dr.gather(mi.Float64, plane, index) + value
-                   for plane, value in zip(self.planes, sums)]
-            for plane, value in zip(self.planes, new):
-                dr.scatter(plane, value, index, mode=dr.ReduceMode.Permute)
+            for plane, value in zip(self.planes, sums):
+                dr.scatter_add(plane, value, index, mode=dr.ReduceMode.Direct)
             dr.eval(self.planes)
         self.empty = False
 
