@@ -1,0 +1,86 @@
+"""Where an adaptive render's per-pass fixed cost goes, on scenes/edges.xml.
+
+Renders ``scenes/edges.xml`` adaptively (``sobol``, default settings) ``--renders``
+times after a warm-up and reports, per render:
+
+* wall time, passes, and the fit ``seconds = a + b x samples`` over the passes
+  (``a`` is the fixed cost a machine with faster kernels would not shrink);
+* the time of ``PixelSums.commit`` (the sub-pixel sums' update at the end of each
+  pass), timed with ``dr.sync_thread()`` around it;
+* from Dr.Jit's kernel history: the kernels' execution time, and the ``Memcpy``
+  kernels per pass (whole-array copies, e.g. a scatter into an array that a
+  pending gather still reads).
+
+    python benchmarks/adaptive_pass_cost.py [--renders 6]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+
+mi.set_variant("llvm_ad_rgb")
+
+from mcrt.core.sampling import make_sampler  # noqa: E402
+from mcrt.render.adaptive import AdaptiveSettings, pass_time_fit, render_adaptive  # noqa: E402
+from mcrt.render.adaptive.sums import PixelSums  # noqa: E402
+from mcrt.render.scene import load_scene  # noqa: E402
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "edges.xml"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--renders", type=int, default=6)
+    args = parser.parse_args()
+    scene = load_scene(SCENE, {})
+    settings = AdaptiveSettings()
+    commit_seconds: list[float] = []
+    commit = PixelSums.commit
+
+    def timed_commit(self, pending) -> None:
+        dr.sync_thread()
+        start = time.perf_counter()
+        commit(self, pending)
+        dr.sync_thread()
+        commit_seconds.append(time.perf_counter() - start)
+
+    PixelSums.commit = timed_commit  # type: ignore[method-assign]
+    render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings, seed=0)
+    rows = []
+    for seed in range(1, args.renders + 1):
+        commit_seconds.clear()
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()  # start empty
+        dr.sync_thread()
+        start = time.perf_counter()
+        result = render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
+                                 seed=seed)
+        dr.sync_thread()
+        wall = time.perf_counter() - start
+        history = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
+        copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
+        rows.append((wall, len(result.passes), kernels, sum(commit_seconds), copies, result))
+    fit = pass_time_fit([p for *_, r in rows for p in r.passes])
+    print(f"scenes/edges.xml, sobol, default settings, {args.renders} renders after a warm-up, "
+          f"Dr.Jit threads: {dr.thread_count()}")
+    print("| render | wall [s] | passes | kernel execution [s] | commit [ms] | Memcpy per pass |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for i, (wall, passes, kernels, commit_s, copies, _) in enumerate(rows):
+        print(f"| {i + 1} | {wall:.3f} | {passes} | {kernels:.3f} | {1e3 * commit_s:.1f} | "
+              f"{copies / passes:.1f} |")
+    print(f"median: wall {statistics.median(r[0] for r in rows):.3f} s, commit "
+          f"{1e3 * statistics.median(r[3] for r in rows):.1f} ms per render")
+    print(f"pass time over {fit['passes']:.0f} passes: {1e3 * fit['intercept']:.1f} ms + "
+          f"{1e9 * fit['slope']:.1f} ns x samples (R^2 {fit['r2']:.3f})")
+
+
+if __name__ == "__main__":
+    main()
