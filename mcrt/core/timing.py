@@ -1,0 +1,273 @@
+"""The timing protocol: how every figure in seconds is taken, in one place.
+
+Timing on a shared machine is noisy: another process, a frequency change or a
+page-cache flush slows whatever runs at that moment. So every command that
+reports seconds (``mcrt compare``, ``mcrt demo``, ``mcrt integrate``, the
+benchmarks) times the same way, after pyperf and hyperfine:
+
+1. **Warm-up.** Every case runs once untimed first, so kernels are compiled
+   (or loaded from the cache) before any timed run.
+2. **Interleaved repetitions.** The timed runs come in *rounds*; each round
+   runs every case once, in an order shuffled afresh each round
+   (:func:`round_orders`, seeded, so a rerun uses the same orders). A change of
+   machine load then hits every case alike instead of landing on one of them,
+   and runs of one round are close in time, so the ratio of two cases' times
+   within a round (*paired*) cancels slow drifts.
+3. **Both clocks.** Each timed run records wall time (``perf_counter``) and the
+   process's CPU time (``process_time``: every thread of the process, so
+   Dr.Jit's worker threads too), and how many other processes were runnable
+   when it started (``procs_running`` of ``/proc/stat``; None elsewhere).
+4. **Robust summary** (:class:`TimingSummary`): the median; 1.4826 x the
+   median absolute deviation as the spread; outliers (more than
+   :data:`OUTLIER_Z` robust sd from the median); the standard error of the log
+   of the median, ``sqrt(pi / 2) x sd(log t) / sqrt(n)`` (the median's
+   asymptotic efficiency; the plain sd keeps it honest when there are
+   outliers); and a stability verdict: *unstable* when the relative spread
+   exceeds :data:`SPREAD_LIMIT`, *loaded* when other processes were runnable at
+   the start of more than :data:`LOADED_SHARE` of the runs.
+5. **Fixed and per-unit cost apart** (:func:`fit_cost`): ``t = fixed + per_unit
+   x units`` by least squares over all timed runs of a case at several sizes
+   (e.g. units = samples), with standard errors.
+
+The statistics of intervals and tests live in :mod:`mcrt.analysis.significance`
+(this module only measures and summarises).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+
+#: A case whose robust relative spread (1.4826 MAD / median) exceeds this is unstable.
+SPREAD_LIMIT = 0.10
+#: A timed run more than this many robust sd from the median is an outlier.
+OUTLIER_Z = 3.5
+#: A case is loaded when other processes were runnable at more than this share of its runs.
+LOADED_SHARE = 0.25
+#: The median's standard error relative to the mean's under normality, sqrt(pi / 2).
+MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2.0)
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One timed run: wall and process CPU seconds, other runnable processes at its start."""
+
+    wall: float
+    cpu: float
+    others: int | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _own_running() -> int:
+    """Threads of this process that are runnable now (state R in /proc/self/task):
+    the caller, and Dr.Jit's workers while they spin down after a kernel."""
+    count = 0
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return 1
+    for task in tasks:
+        try:
+            with open(f"/proc/self/task/{task}/stat", "rb") as f:
+                state = f.read().rsplit(b")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue
+        count += state == b"R"
+    return max(count, 1)
+
+
+def others_running() -> int | None:
+    """Threads of other processes runnable right now: ``procs_running`` of
+    ``/proc/stat`` (every runnable thread of the machine) less this process's
+    runnable threads; None where the kernel does not say (not Linux)."""
+    try:
+        with open("/proc/stat", "rb") as f:
+            for line in f:
+                if line.startswith(b"procs_running"):
+                    return max(0, int(line.split()[1]) - _own_running())
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def timed(fn: Callable[[], T], sync: Callable[[], None] | None = None) -> tuple[T, Sample]:
+    """Run ``fn()`` once and time it; ``sync`` (e.g. ``dr.sync_thread``) is called
+    before the clocks stop so that queued device work is counted."""
+    others = others_running()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    out = fn()
+    if sync is not None:
+        sync()
+    return out, Sample(time.perf_counter() - wall0, time.process_time() - cpu0, others)
+
+
+def round_orders(cases: int, rounds: int, seed: int = 0) -> list[list[int]]:
+    """The order of ``cases`` in each of ``rounds`` rounds: a permutation drawn
+    afresh per round from a generator seeded by ``seed`` (the same orders on
+    every run with that seed)."""
+    rng = np.random.default_rng([0x71AE, seed])
+    return [[int(i) for i in rng.permutation(cases)] for _ in range(rounds)]
+
+
+def run_interleaved(cases: Sequence[Callable[[], Any]], rounds: int, warmup: int = 1,
+                    seed: int = 0, sync: Callable[[], None] | None = None
+                    ) -> list[list[Sample]]:
+    """The protocol for callables in this process: ``warmup`` untimed calls of
+    each case, then ``rounds`` rounds in shuffled order; the samples per case,
+    in round order."""
+    for _ in range(warmup):
+        for case in cases:
+            case()
+            if sync is not None:
+                sync()
+    samples: list[list[Sample]] = [[] for _ in cases]
+    for order in round_orders(len(cases), rounds, seed):
+        for i in order:
+            samples[i].append(timed(cases[i], sync)[1])
+    return samples
+
+
+@dataclass(frozen=True)
+class TimingSummary:
+    """What a case's timed runs say (wall time unless noted); see the module doc."""
+
+    n: int
+    median: float
+    spread: float                 # 1.4826 x MAD (s)
+    minimum: float
+    se_log: float                 # standard error of log(median)
+    cpu_median: float
+    outliers: int
+    loaded: int                   # runs that started with other processes runnable
+    unstable: bool = field(default=False)
+
+    @property
+    def relative_spread(self) -> float:
+        return self.spread / self.median if self.median > 0 else math.nan
+
+    @property
+    def is_loaded(self) -> bool:
+        return self.n > 0 and self.loaded > LOADED_SHARE * self.n
+
+    @property
+    def stable(self) -> bool:
+        """Neither unstable nor loaded."""
+        return not (self.unstable or self.is_loaded)
+
+    def problems(self) -> list[str]:
+        """What makes this case's timing doubtful, in words (empty: nothing)."""
+        out = []
+        if self.unstable:
+            out.append(f"spread {100 * self.relative_spread:.0f}% of the median")
+        if self.outliers:
+            out.append(f"{self.outliers} outlier{'s' if self.outliers > 1 else ''}")
+        if self.is_loaded:
+            out.append(f"other processes running at {self.loaded} of {self.n} runs")
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "relative_spread": self.relative_spread,
+                "stable": self.stable}
+
+
+def summarise(samples: Sequence[Sample]) -> TimingSummary:
+    """The robust summary of a case's timed runs (NaN fields when there are none)."""
+    wall = np.array([s.wall for s in samples], dtype=np.float64)
+    wall = wall[np.isfinite(wall) & (wall > 0)]
+    n = int(wall.size)
+    if n == 0:
+        nan = math.nan
+        return TimingSummary(0, nan, nan, nan, nan, nan, 0, 0, unstable=True)
+    median = float(np.median(wall))
+    spread = float(1.4826 * np.median(np.abs(wall - median))) if n > 1 else math.nan
+    logs = np.log(wall)
+    se_log = float(MEDIAN_SE_FACTOR * logs.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
+    outliers = int(np.count_nonzero(np.abs(wall - median) > OUTLIER_Z * spread)) \
+        if n > 2 and spread > 0 else 0
+    cpu = float(np.median([s.cpu for s in samples]))
+    loaded = sum(1 for s in samples if s.others)
+    unstable = bool(n > 1 and spread / median > SPREAD_LIMIT)
+    return TimingSummary(n, median, spread, float(wall.min()), se_log, cpu, outliers, loaded,
+                         unstable=unstable)
+
+
+@dataclass(frozen=True)
+class CostFit:
+    """``seconds = fixed + per_unit x units`` by least squares, with standard errors."""
+
+    fixed: float
+    per_unit: float
+    fixed_se: float
+    per_unit_se: float
+    n: int
+    r2: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def fit_cost(units: Sequence[float], seconds: Sequence[float]) -> CostFit:
+    """The fixed and per-unit cost of a case timed at several sizes (``units``:
+    samples, passes, ...); NaN with fewer than two distinct sizes. Standard
+    errors are the usual OLS ones (residual variance on n - 2 degrees of freedom;
+    NaN with two points)."""
+    x = np.asarray(units, dtype=np.float64)
+    y = np.asarray(seconds, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    n = int(x.size)
+    nan = math.nan
+    if n < 2 or np.ptp(x) == 0:
+        return CostFit(float(y.mean()) if n else nan, nan, nan, nan, n, nan)
+    xm, ym = float(x.mean()), float(y.mean())
+    sxx = float(((x - xm) ** 2).sum())
+    slope = float(((x - xm) * (y - ym)).sum() / sxx)
+    fixed = ym - slope * xm
+    residual = y - (fixed + slope * x)
+    total = float(((y - ym) ** 2).sum())
+    r2 = 1.0 - float((residual ** 2).sum()) / total if total > 0 else 1.0
+    if n > 2:
+        s2 = float((residual ** 2).sum()) / (n - 2)
+        slope_se = math.sqrt(s2 / sxx)
+        fixed_se = math.sqrt(s2 * (1.0 / n + xm * xm / sxx))
+    else:
+        slope_se = fixed_se = nan
+    return CostFit(fixed, slope, fixed_se, slope_se, n, r2)
+
+
+def machine() -> dict[str, Any]:
+    """Machine facts that bear on timing: CPU model, cores usable, load averages."""
+    model = ""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        usable = os.cpu_count() or 1
+    try:
+        load = [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        load = []
+    return {"cpu_model": model, "cpus_usable": usable, "loadavg": load,
+            "others_running": others_running()}
+
+
+__all__ = ["LOADED_SHARE", "OUTLIER_Z", "SPREAD_LIMIT", "CostFit", "Sample", "TimingSummary",
+           "fit_cost", "machine", "others_running", "round_orders", "run_interleaved",
+           "summarise", "timed"]
