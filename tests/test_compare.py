@@ -101,7 +101,8 @@ def test_a_scene_without_box_filter_is_accepted(tmp_path):
 def test_check_only(tmp_path, capsys):
     code = main(["compare", str(_config(tmp_path, GOOD)), "--check"])
     out = capsys.readouterr().out
-    assert code == 0 and "OK" in out and "12 renders" in out  # 4 cells x (warm-up + 2 seeds)
+    # 4 cells x (warm-up + 5 timed rounds: the 2 seeds' renders and 3 timing-only ones)
+    assert code == 0 and "OK" in out and "5 timed rounds: 24 renders" in out
 
 
 def test_a_tiny_study_survives_nan_pixels(tmp_path, monkeypatch):
@@ -287,12 +288,17 @@ def test_numbers_are_finite_and_consistent(quick):
         assert c["bias_low"] <= c["bias"] <= c["bias_high"]
         assert c["mse_excess"] == pytest.approx(c["mse"] - c["mse_floor"], rel=1e-12)
         assert c["mse"] == pytest.approx(sum(r["mse"] for r in c["per_seed"]) / k, rel=1e-12)
-        assert c["seconds"] == pytest.approx(sum(r["seconds"] for r in c["per_seed"]) / k)
+        # the cell's time: the median of its timed renders, the seeds' among them
+        assert len(c["times"]) == data["study"]["time_rounds"] >= k
+        assert c["seconds"] == pytest.approx(float(np.median(c["times"])), rel=1e-12)
+        assert [r["seconds"] for r in c["per_seed"]] == c["times"][:k]
+        assert c["seconds_low"] <= c["seconds"] <= c["seconds_high"]
         assert c["mse"] == pytest.approx(c["mse_of_mean"] + (k - 1) / k * c["variance"],
                                          rel=1e-9), name
         if c["resolved"]:
             assert c["efficiency"] == pytest.approx(1 / (c["mse_excess"] * c["seconds"]),
                                                     rel=1e-12), name
+            assert c["efficiency_low"] < c["efficiency"] < c["efficiency_high"], name
         else:  # flagged, not silently fitted: too close to the reference's own noise
             assert c["efficiency"] is None and c["mse"] <= 2 * c["mse_floor"], name
     floors = {c["scene"]: c["mse_floor"] for c in data["cells"]}

@@ -3,7 +3,10 @@
 The interrupt is simulated inside the n-th ``render_film`` call: its per-pass
 hook raises ``KeyboardInterrupt``, as SIGINT does when Python delivers it
 between two bytecodes of a render (between or right after its Dr.Jit kernels). The studies are tiny (64x48 checkerboard, 4 cells
-of warm-up + 2 seeds): about 10 s for the whole file on 2 cores.
+of warm-up + 5 timed rounds, the first 2 of them the seeds): about 10 s for the whole file
+on 2 cores. A study renders one group of cells per sample count (both samplers at 4 spp,
+then both at 16 spp), their timed renders interleaved in shuffled rounds; the group is the
+unit of resume.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from mcrt.errors import McrtError
 
 CONFIG = study_toml(CHECKERBOARD, name="resume")
 
-#: Cell order of CONFIG (scene, sampler, spp): the order a study renders them.
+#: Cell order of CONFIG (scene, sampler, spp): the order of a study's results.
 CELLS = [("checkerboard", "jittered", 4), ("checkerboard", "jittered", 16),
          ("checkerboard", "independent", 4), ("checkerboard", "independent", 16)]
 
@@ -109,46 +112,52 @@ def test_ctrl_c_writes_a_partial_report_and_the_same_command_resumes(study, tmp_
     monkeypatch.setenv("MCRT_CACHE_DIR", str(cache))
     out = tmp_path / "report"
 
-    # 1. Ctrl-C during the second seed of the second cell (renders: 3 + warm-up + seed 0 + ...).
-    renders = Renders(monkeypatch, stop_at=6)
+    # 1. Ctrl-C in the second group (16 spp): the first group took 2 warm-ups + 2 x 5 rounds
+    # (the reference is cached); render 16 is the second cell's first timed render.
+    renders = Renders(monkeypatch, stop_at=16)
     code, stdout, err = _run(capsys, "-q", "compare", str(config), "-o", str(out))
     assert code == 130
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("mcrt: interrupted: wrote a partial report "
-                                                    "(1 of 4 cells)")
+                                                    "(2 of 4 cells)")
     assert f"to resume, run: mcrt -q compare {config} -o {out}" in lines[0]
     assert "Traceback" not in err + stdout
+    assert sorted(renders.cells()) == [("independent", 4), ("independent", 16),
+                                       ("jittered", 4), ("jittered", 16)]
 
     data = _json(out)
     assert data["partial"] is True
     progress = data["progress"]
-    assert (progress["cells_done"], progress["cells_total"], progress["cells_resumed"]) == (1, 4, 0)
-    assert progress["interrupted"] == {"scene": "checkerboard", "sampler": "jittered", "spp": 16,
-                                       "seeds_done": 1, "seeds_total": 2}
+    assert (progress["cells_done"], progress["cells_total"], progress["cells_resumed"]) == (2, 4, 0)
+    stop = progress["interrupted"]
+    assert (stop["spp"], stop["seeds_done"], stop["seeds_total"]) == (16, 1, 2)
+    other = "independent" if stop["sampler"] == "jittered" else "jittered"
     assert [(p["sampler"], p["spp"]) for p in progress["pending"]] == [
-        ("jittered", 16), ("independent", 4), ("independent", 16)]
+        ("jittered", 16), ("independent", 16)]
     assert "compare" in progress["resume"]
-    assert [(c["sampler"], c["spp_requested"]) for c in data["cells"]] == [("jittered", 4)]
+    assert [(c["sampler"], c["spp_requested"]) for c in data["cells"]] == [
+        ("jittered", 4), ("independent", 4)]
     rows = _csv(out)
-    assert [(r["sampler"], r["spp_requested"], r["status"], r["seeds_done"]) for r in rows] == [
-        ("jittered", "4", "done", "2"), ("jittered", "16", "interrupted", "1"),
-        ("independent", "4", "pending", "0"), ("independent", "16", "pending", "0")]
+    status = {(r["sampler"], r["spp_requested"]): (r["status"], r["seeds_done"]) for r in rows}
+    assert status == {("jittered", "4"): ("done", "2"), ("independent", "4"): ("done", "2"),
+                      (stop["sampler"], "16"): ("interrupted", "1"), (other, "16"): ("pending", "0")}
+    assert [(r["sampler"], r["spp_requested"]) for r in rows] == [(s, str(n)) for _, s, n in CELLS]
     assert rows[1]["mse"] == "" and float(rows[0]["mse"]) == data["cells"][0]["mse"]
     html = (out / "report.html").read_text()
-    assert "(partial)</h1>" in html and "interrupted after 1 of 4 cells" in html
-    assert html.count("pending") >= 3 and "1/2 seeds" in html
+    assert "(partial)</h1>" in html and "interrupted after 2 of 4 cells" in html
+    assert html.count("pending") >= 1 and "1/2 seeds" in html
     assert (out / STATE_DIR / "state.npz").is_file()
     assert not list(out.rglob(".*.tmp"))  # atomic writes left nothing behind
 
-    # 2. The same command: only the three unfinished cells are rendered.
+    # 2. The same command: only the unfinished group (both cells at 16 spp) is rendered.
     renders = Renders(monkeypatch)
     code, stdout, err = _run(capsys, "-q", "compare", str(config), "-o", str(out))
     assert code == 0, err
-    assert renders.cells() == [("jittered", 16), ("independent", 4), ("independent", 16)]
-    assert len(renders.calls) == 3 * 3  # warm-up + 2 seeds per remaining cell
-    assert "(1 of 4 cells from the saved state)" in stdout
+    assert sorted(renders.cells()) == [("independent", 16), ("jittered", 16)]
+    assert len(renders.calls) == 2 * (1 + 5)  # warm-up + 5 timed rounds per cell
+    assert "(2 of 4 cells from the saved state)" in stdout
     data = _json(out)
-    assert data["partial"] is False and data["progress"]["cells_resumed"] == 1
+    assert data["partial"] is False and data["progress"]["cells_resumed"] == 2
     assert [r["status"] for r in _csv(out)] == ["done"] * 4
     html = (out / "report.html").read_text()
     assert "(partial)" not in html and "measured by an earlier, interrupted run" in html
@@ -161,8 +170,8 @@ def test_ctrl_c_writes_a_partial_report_and_the_same_command_resumes(study, tmp_
         for key in DETERMINISTIC:
             assert _same(got[key], want[key]), (got["sampler"], got["spp"], key)
         for a, b in zip(got["per_seed"], want["per_seed"]):
-            assert {k: v for k, v in a.items() if k != "seconds"} == \
-                   {k: v for k, v in b.items() if k != "seconds"}
+            assert {k: v for k, v in a.items() if "seconds" not in k} == \
+                   {k: v for k, v in b.items() if "seconds" not in k}
     for got, want in zip(data["fits"], baseline["fits"]):
         assert got["slope_spp"] == want["slope_spp"] and got["points"] == want["points"]
 
@@ -175,7 +184,7 @@ def test_ctrl_c_writes_a_partial_report_and_the_same_command_resumes(study, tmp_
     # 4. --restart measures every cell again.
     renders = Renders(monkeypatch)
     assert _run(capsys, "-q", "compare", str(config), "-o", str(out), "--restart")[0] == 0
-    assert renders.cells() == [(s, n) for _, s, n in CELLS]
+    assert sorted(renders.cells()) == sorted((s, n) for _, s, n in CELLS)
 
 
 def test_interrupt_before_any_cell_still_writes_a_marked_report(study, tmp_path, monkeypatch,
@@ -295,3 +304,37 @@ def test_a_failing_state_write_does_not_stop_the_study(tmp_path, monkeypatch, no
 def _write(path: Path, text: str) -> Path:
     path.write_text(text)
     return path
+
+
+def test_retime_times_the_saved_cells_again_and_keeps_their_errors(study, tmp_path,
+                                                                  monkeypatch, capsys):
+    """`--retime`: every saved cell is rendered again for timing only (a warm-up
+    and the 5 timed rounds; nothing is scored), the errors stay bit for bit, the
+    times and what derives from them are new. Without saved cells it refuses."""
+    config, cache, baseline = study
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(cache))
+    out = tmp_path / "report"
+    code, _, err = _run(capsys, "-q", "compare", str(config), "-o", str(out), "--retime")
+    assert code == 2 and "--retime needs every cell measured: 0 of 4" in err
+    assert _run(capsys, "-q", "compare", str(config), "-o", str(out))[0] == 0
+    first = _json(out)
+
+    import mcrt.analysis.study.runner as runner
+
+    scored = []
+    monkeypatch.setattr(runner, "score_seed", lambda *a, **k: scored.append(a))
+    renders = Renders(monkeypatch)
+    code, stdout, err = _run(capsys, "-q", "compare", str(config), "-o", str(out), "--retime")
+    assert code == 0, err
+    assert sorted(renders.cells()) == sorted((s, n) for _, s, n in CELLS)
+    assert len(renders.calls) == 4 * (1 + 5) and scored == []
+    again = _json(out)
+    for got, want in zip(again["cells"], first["cells"]):
+        for key in DETERMINISTIC:
+            assert _same(got[key], want[key]), key
+        assert got["per_seed"] == want["per_seed"]  # the seeds' own records are kept
+        assert got["times"] != want["times"] and len(got["times"]) == 5
+        assert got["seconds"] == sorted(got["times"])[2]  # the median of the new times
+    code, _, err = _run(capsys, "compare", str(config), "-o", str(out), "--retime",
+                        "--restart")
+    assert code == 2 and "use one of the two" in err

@@ -54,17 +54,23 @@ from ..core.atomic import atomic_path, ensure_writable_dir
 from .aliasing import UNMEASURED
 from .plots import error_figure, images_figure, save_figure, summary_figure
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
+from .study.conclude import bias_lines, timing_lines
 from .study.fields import CELL_COLUMNS, CSV_COLUMNS, DEFINITIONS, FIT_COLUMNS, Field
 from .viewer import HELP, viewer_assets, viewer_sections
 from .viewer.files import Links, write_exrs
 
 TIME_NOTE = (
-    "Time is the wall time of one render as measured by render_film: tracing every pass, "
-    "accumulating and developing the film, between two dr.sync_thread() calls. Before the "
-    "timed renders of each (scene, sampler, spp) cell one untimed warm-up render compiles "
-    "(or loads from the cache) every kernel. Scene loading, sampler construction, copying "
-    "the image to NumPy and computing the metrics are not included. The reference's render "
-    "time is reported separately and is not part of any cell.")
+    "Time is the wall time of one render (render_film: tracing every pass, accumulating and "
+    "developing the film, synchronised with dr.sync_thread()), taken by one protocol "
+    "(mcrt.core.timing): every sampler at one sample count is one group; each cell first "
+    "renders once untimed (a warm-up that compiles or loads every kernel), then the group's "
+    "timed renders come in rounds, each rendering every cell once in an order shuffled per "
+    "round, so that a change of machine load hits every sampler alike. The first rounds "
+    "render the seeds (scored), the rest are timing-only renders. A cell's time is the median "
+    "of its rounds with a 95% interval; process CPU time and the other processes runnable "
+    "at each render's start are recorded too. Ratios to the baseline pair the renders of "
+    "one round. Scene loading, sampler construction, copying the image to NumPy and the "
+    "metrics are not included; the reference's render time is reported separately.")
 
 
 # --------------------------------------------------------------------------- data files
@@ -97,6 +103,9 @@ def results_json(result: StudyResult) -> dict[str, Any]:
         "environment": result.environment,
         "seconds_total": result.seconds,
         "time_note": TIME_NOTE,
+        "time_protocol": result.timing,
+        "biased_cells": [{"scene": c["scene"], "sampler": c["sampler"], "spp": c["spp"],
+                          "bias": c["bias"], "bias_z": c["bias_z"]} for c in result.biased],
         "definitions": DEFINITIONS,
         "references": {name: vars(info) for name, info in result.references.items()},
         "effective_spp": [{"sampler": label, "spp_requested": spp, "spp": eff}
@@ -213,12 +222,13 @@ def _table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
 
 
 def _verdicts(cells: list[dict[str, Any]]) -> str:
-    """The aliasing verdicts of a sampler's cells in words."""
+    """The verdicts of a sampler's cells in words (aliasing, bias)."""
     aliased = [str(c["spp"]) for c in cells if c["aliasing"] == "aliased"]
     blue = [str(c["spp"]) for c in cells if c["aliasing"] == "blue"]
-    if all(c["aliasing"] == UNMEASURED for c in cells):
+    biased = [str(c["spp"]) for c in cells if c["biased"]]
+    if all(c["aliasing"] == UNMEASURED for c in cells) and not biased:
         return UNMEASURED
-    verdict = []
+    verdict = [f"<b>biased</b> at {', '.join(biased)} spp"] if biased else []
     if aliased:
         verdict.append(f"aliased at {', '.join(aliased)} spp")
     if blue:
@@ -229,7 +239,8 @@ def _verdicts(cells: list[dict[str, Any]]) -> str:
 def summary_header(result: StudyResult) -> list[str]:
     """Header of :func:`summary_rows` (HTML)."""
     return (["sampler"] + [html.escape(f.column.heading) for f in FIT_COLUMNS if f.column]
-            + [f"eff. @{s}" for s in result.config.spp] + ["aliasing"])
+            + ["fixed ms", "ns / sample"]
+            + [f"eff. ratio @{s} [95%]" for s in result.config.spp] + ["verdict"])
 
 
 def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
@@ -241,10 +252,23 @@ def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
         by_spp = {c["spp_requested"]: c for c in cells}
         rows.append([html.escape(sampler.label)]
                     + [_show(f, fit) for f in FIT_COLUMNS]
-                    + [_fmt(by_spp[spp]["efficiency"]) if spp in by_spp else "pending"
+                    + [_fmt(1e3 * fit["fixed_seconds"]), _fmt(1e9 * fit["seconds_per_sample"])]
+                    + [_ratio_cell(by_spp[spp]) if spp in by_spp else "pending"
                        for spp in result.config.spp]
                     + [_verdicts(cells)])
     return rows
+
+
+def _ratio_cell(cell: dict[str, Any]) -> str:
+    """An efficiency ratio with its interval; 'n.s.' when the interval holds 1."""
+    if not cell["resolved"]:
+        return "unresolved"
+    value, low, high = (cell[k] for k in ("efficiency_ratio", "efficiency_ratio_low",
+                                          "efficiency_ratio_high"))
+    text = f"{_fmt(value)} [{_fmt(low)}, {_fmt(high)}]"
+    if math.isfinite(low) and low <= 1.0 <= high and low < high:
+        text += " <i>n.s.</i>"
+    return text
 
 
 def cell_header() -> list[str]:
@@ -322,6 +346,7 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
              f"<h1>mcrt study: {html.escape(config.name)}{mark}</h1>"]
     if result.partial:
         parts.append(partial_banner(result))
+    parts += findings_banners(result)
     if config.description:
         parts.append(f"<p>{html.escape(config.description)}</p>")
     parts.append(
@@ -349,9 +374,14 @@ def _html_convergence(result: StudyResult, files: dict[str, Path]) -> list[str]:
     parts = [_h2("convergence"),
              "<p class='note'>Slopes are least-squares fits of log MSE (reference noise "
              "removed) against log spp and against log seconds, over every seed of the "
-             "resolved cells (&plusmn; one standard error). Efficiency is "
-             "1&nbsp;/&nbsp;(MSE &times; seconds): higher is better; a sampler twice as "
-             "efficient reaches the same error in half the time. In the plots each point "
+             "resolved cells, with 95% intervals. Efficiency is "
+             "1&nbsp;/&nbsp;(MSE &times; seconds) on the median wall time of a render: "
+             "higher is better; a sampler twice as efficient reaches the same error in half "
+             "the time. The table gives each sampler's efficiency as a ratio to the baseline "
+             f"<b>{html.escape(result.config.baseline)}</b> at the same spp, with its 95% "
+             "interval (<i>n.s.</i>: the interval contains 1, no significant difference), "
+             "and its cost per render split into a fixed part and a part per sample (a "
+             "least-squares line over every timed render). In the plots each point "
              "is labelled with its sample count; a cross marks an <i>unresolved</i> cell: "
              f"its MSE is below {RESOLVED_FACTOR:g}&times; the reference's own noise floor "
              "(dotted line), so the reference cannot tell its error apart from zero; it "
@@ -414,6 +444,23 @@ def _html_definitions() -> list[str]:
                  "<code>error_vs_spp.png</code>, <code>error_vs_time.png</code>.</p>")
     parts.append(f"<script>{viewer_assets()[1]}</script></body></html>\n")
     return parts
+def findings_banners(result: StudyResult) -> list[str]:
+    """Banners for what a reader must not miss: biased cells, disturbed timing."""
+    out = []
+    biased = bias_lines(result.cells)
+    if biased:
+        items = "".join(f"<li>{html.escape(line)}</li>" for line in biased)
+        out.append(f"<div class='partial'><b>Bias found.</b> The mean of these cells' "
+                   f"images differs from the reference by more than their noise explains "
+                   f"(95% family-wise, over the whole study):<ul>{items}</ul></div>")
+    timing = timing_lines(result.timing)
+    if timing:
+        items = "".join(f"<li>{html.escape(line)}</li>" for line in timing)
+        out.append(f"<div class='partial'><b>Timing was disturbed.</b> Times and "
+                   f"efficiencies of the cells named are doubtful:<ul>{items}</ul></div>")
+    return out
+
+
 def partial_banner(result: StudyResult) -> str:
     """The report's notice that the study is incomplete, and how to resume it."""
     total, done = result.config.cells, len(result.cells)

@@ -24,6 +24,7 @@ from ..analysis.study import (
     load_config,
     run_study,
 )
+from ..analysis.study.conclude import bias_lines, interval_text, ratio_sentence, timing_lines
 from ..core.atomic import remedy
 from ..errors import McrtError
 from . import SUMMARIES, _common
@@ -53,6 +54,10 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                    help="only validate the configuration (load scenes, make samplers) and exit")
     p.add_argument("--restart", action="store_true",
                    help=f"ignore the cells saved in DIR/{STATE_DIR} and measure every cell again")
+    p.add_argument("--retime", action="store_true",
+                   help=f"time the cells saved in DIR/{STATE_DIR} again (interleaved rounds of "
+                        "timing-only renders) and rewrite the report; their errors are kept, "
+                        "e.g. after the report said that timing was disturbed")
     _common.add_cluster_argument(p)
     p.set_defaults(run=run)
 
@@ -67,8 +72,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)  # every input error surfaces here, before rendering
     if args.check:
         print(f"{args.config}: OK ({len(config.scenes)} scenes, {len(config.samplers)} samplers, "
-              f"{len(config.spp)} sample counts, {len(config.seeds)} seeds: "
-              f"{config.renders} renders)")
+              f"{len(config.spp)} sample counts, {len(config.seeds)} seeds, {config.rounds} "
+              f"timed rounds: {config.renders} renders)")
         return 0
     out = Path(args.output) if args.output else Path("out") / "compare" / config.name
     ensure_writable_dir(out)
@@ -76,13 +81,23 @@ def run(args: argparse.Namespace) -> int:
     _check_space(config, out)
     _common.note_first_run()
 
+    if args.retime and args.restart:
+        raise McrtError("--retime times the saved cells again; --restart discards them: "
+                        "use one of the two")
     state = StudyState.open(out, config, restart=args.restart)
-    if state.cells:
+    if args.retime:
+        if len(state.cells) < config.cells:
+            raise McrtError(f"--retime needs every cell measured: {len(state.cells)} of "
+                            f"{config.cells} are saved in {state.directory}; run the same "
+                            f"command without --retime first")
+        log.info("timing the %d saved cells again (their errors are kept)", len(state.cells))
+    elif state.cells:
         log.info("resuming: %d of %d cells were measured by an earlier run (%s; --restart "
                  "measures them again)", len(state.cells), config.cells, state.directory)
     try:
         with _common.cluster_executor(args.cluster) as executor:
-            result = run_study(config, progress=not args.quiet, state=state, executor=executor)
+            result = run_study(config, progress=not args.quiet, state=state, executor=executor,
+                               retime=args.retime)
     except StudyInterrupted as stop:
         return _write_partial(stop.result, args, out)
     except McrtError as error:
@@ -98,15 +113,12 @@ def run(args: argparse.Namespace) -> int:
                 f"measuring again") if state.cells and state.writable else ""
         raise McrtError(f"{error}{kept}") from None
 
-    for scene in config.scenes:
-        print(f"{scene.name}: log-log slope of MSE vs spp and vs time; best efficiency "
-              f"1/(MSE x s)")
-        print(f"  {'sampler':14s} {'spp':>7s} {'time':>7s}  {'efficiency':>10s}")
-        for sampler in config.samplers:
-            fit = result.fit(scene.name, sampler.label)
-            print(f"  {sampler.label:14s} {_num(fit['slope_spp'], '+.2f'):>7s} "
-                  f"{_num(fit['slope_seconds'], '+.2f'):>7s}  "
-                  f"{_num(fit['efficiency_max'], '.3g'):>10s}")
+    _print_summary(result)
+    for line in bias_lines(result.cells):
+        print(f"bias: {line}")
+    retime = shlex.join(["mcrt", "compare", str(args.config), "-o", str(out), "--retime"])
+    for line in timing_lines(result.timing, retime):
+        print(f"timing: {line}")
     resumed = (f" ({result.resumed_cells} of {config.cells} cells from the saved state)"
                if result.resumed_cells else "")
     print(f"study took {result.seconds:.1f} s of wall time{resumed}, including kernel "
@@ -156,6 +168,45 @@ def _write_partial(result: StudyResult, args: argparse.Namespace, out: Path) -> 
         written = f"could not write the partial report ({error})"
     print(f"mcrt: interrupted: {written}; to resume, run: {command}", file=sys.stderr)
     return 130
+
+
+def _print_summary(result: StudyResult) -> None:
+    """Per scene: slopes and cost per sampler, then efficiency ratios to the
+    baseline at every spp (95% intervals), then the ratios at the largest spp
+    in words."""
+    config, baseline = result.config, result.config.baseline
+    for scene in result.scenes:
+        print(f"{scene}: log-log slopes of excess MSE vs spp and vs time [95%]; cost per "
+              f"render = fixed + per sample (fit over the timed renders)")
+        print(f"  {'sampler':14s} {'slope vs spp':>22s} {'slope vs time':>22s} "
+              f"{'fixed ms':>9s} {'ns/sample':>9s}")
+        for sampler in config.samplers:
+            fit = result.fit(scene, sampler.label)
+            spp_slope, time_slope = (
+                interval_text(fit[f"slope_{k}"], fit[f"slope_{k}_low"], fit[f"slope_{k}_high"],
+                              "+.2f") for k in ("spp", "seconds"))
+            print(f"  {sampler.label:14s} {spp_slope:>22s} {time_slope:>22s} "
+                  f"{_num(1e3 * fit['fixed_seconds'], '.2f'):>9s} "
+                  f"{_num(1e9 * fit['seconds_per_sample'], '.2f'):>9s}")
+        print(f"  efficiency = 1/(excess MSE x median render time), as a ratio to {baseline}'s "
+              f"at the same spp [95%]:")
+        print(f"  {'sampler':14s} " + " ".join(f"{f'{spp} spp':>20s}" for spp in config.spp))
+        cells = {(c["sampler"], c["spp_requested"]): c for c in result.cells
+                 if c["scene"] == scene}
+        for sampler in config.samplers:
+            row = []
+            for spp in config.spp:
+                c = cells.get((sampler.label, spp))
+                row.append("pending" if c is None else "unresolved" if not c["resolved"] else
+                           interval_text(c["efficiency_ratio"], c["efficiency_ratio_low"],
+                                         c["efficiency_ratio_high"], ".2f"))
+            print(f"  {sampler.label:14s} " + " ".join(f"{r:>20s}" for r in row))
+        largest = max(spp for (_, spp) in cells) if cells else None
+        for sampler in config.samplers:
+            c = cells.get((sampler.label, largest)) if largest is not None else None
+            sentence = ratio_sentence(c, baseline) if c is not None else ""
+            if sentence:
+                print(f"  {sentence}")
 
 
 def _num(value: float, spec: str) -> str:

@@ -33,7 +33,12 @@ MIN_REFERENCE_FACTOR = 4
 MAX_NAME_BYTES = 200
 
 _TOP_KEYS = {"name", "description", "spp", "seeds", "image_spp", "aliasing_draws", "samplers",
-             "reference", "scenes", "filters"}
+             "reference", "scenes", "filters", "baseline", "time_rounds"}
+
+#: Timed renders per cell when the configuration does not say (at least one per seed):
+#: five rounds keep the 95% interval of a cell's time within a few percent on a quiet
+#: machine (BENCHMARKS.md, timing stability).
+DEFAULT_TIME_ROUNDS = 5
 #: Mitsuba's reconstruction filters, the values of a study's ``filters`` axis.
 FILTERS = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
 #: Joins a scene's name and a filter into the scene name of a ``filters`` study's cells.
@@ -96,6 +101,10 @@ class StudyConfig:
     path: Path | None = None
     #: the ``filters`` axis (empty: every scene renders with its own filter)
     filters: tuple[str, ...] = ()
+    #: the sampler label efficiencies are compared with (ratios and their intervals)
+    baseline: str = ""
+    #: timed renders per cell (0: :data:`DEFAULT_TIME_ROUNDS`); never fewer than the seeds
+    time_rounds: int = 0
     #: effective sample count of every (sampler label, requested spp), filled by validation
     effective_spp: dict[tuple[str, int], int] = field(default_factory=dict)
 
@@ -104,16 +113,22 @@ class StudyConfig:
         return len(self.scenes) * len(self.samplers) * len(self.spp)
 
     @property
+    def rounds(self) -> int:
+        """Timed renders per cell: one per seed (scored), then timing-only renders."""
+        return max(self.time_rounds or DEFAULT_TIME_ROUNDS, len(self.seeds))
+
+    @property
     def renders(self) -> int:
-        """Renders of the study proper: per cell one warm-up and one per seed."""
-        return self.cells * (len(self.seeds) + 1)
+        """Renders of the study proper: per cell one warm-up and one per round."""
+        return self.cells * (self.rounds + 1)
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "name": self.name, "description": self.description,
             "config_path": str(self.path) if self.path else None,
             "spp": list(self.spp), "seeds": list(self.seeds), "image_spp": self.image_spp,
-            "aliasing_draws": self.aliasing_draws,
+            "aliasing_draws": self.aliasing_draws, "baseline": self.baseline,
+            "time_rounds": self.rounds,
             "reference": {"spp": self.reference.spp, "sampler": self.reference.sampler,
                           "seed": self.reference.seed,
                           "spp_per_pass": self.reference.spp_per_pass},
@@ -217,12 +232,31 @@ def parse_config(data: dict[str, Any], base_dir: Path | None = None, name: str =
     reference = _parse_reference(data["reference"], max(spp))
     filters = _parse_filters(data.get("filters"))
     scenes = _with_filters(_parse_scenes(data["scenes"], base_dir), filters)
+    rounds = _int(data.get("time_rounds", max(DEFAULT_TIME_ROUNDS, len(seeds))), "time_rounds",
+                  2, 1001)
+    if rounds < len(seeds):
+        raise ConfigError(f"time_rounds ({rounds}) must be at least the number of seeds "
+                          f"({len(seeds)}): every seed's render is timed")
     return StudyConfig(
         name=_study_name(data.get("name", name)),
         description=_description(data.get("description", "")),
         scenes=scenes, samplers=samplers, spp=spp, seeds=seeds,
         reference=reference, image_spp=image_spp, aliasing_draws=draws, path=path,
-        filters=filters)
+        filters=filters, baseline=_baseline(data.get("baseline"), samplers),
+        time_rounds=rounds)
+
+
+def _baseline(value: Any, samplers: tuple[SamplerSpec, ...]) -> str:
+    """The sampler label efficiencies are compared with: the configuration's, else
+    ``independent`` (the plain Monte-Carlo estimator) when studied, else the first."""
+    labels = [s.label for s in samplers]
+    if value is None:
+        return "independent" if "independent" in labels else labels[0]
+    label = _str(value, "baseline")
+    if label not in labels:
+        raise ConfigError(f"baseline {label!r} is not one of the study's samplers "
+                          f"({', '.join(labels)})")
+    return label
 
 
 def _parse_spp(value: Any) -> tuple[int, ...]:

@@ -76,9 +76,27 @@ CELL_FIELDS: tuple[Field, ...] = (
     Field("spp_requested"),
     Field("spp", column=Column("spp", "count")),
     Field("seeds"),
-    Field("seconds", column=Column("time (ms)", "sd", scale=1e3)),
-    Field("seconds_sd"),
+    Field("seconds", "median wall time of one render over the cell's timed renders: the "
+                     "seeds' renders and timing-only ones, every sampler of a sample count "
+                     "interleaved in shuffled rounds after a warm-up (see time_protocol); "
+                     "seconds_low/high: its 95% interval (Student t on the log, se = "
+                     "sqrt(pi/2) sd(log t) / sqrt(n))",
+          column=Column("time (ms) [95%]", "interval", scale=1e3)),
+    Field("seconds_low"),
+    Field("seconds_high"),
+    Field("seconds_sd", "robust spread of the timed renders: 1.4826 x their median absolute "
+                        "deviation (s)"),
     Field("seconds_min"),
+    Field("cpu_seconds", "median process CPU time of the timed renders (all threads; "
+                         "above the wall time when rendering uses several cores)"),
+    Field("times", "wall time of every timed render, in round order (s)"),
+    Field("cpu_times"),
+    Field("time_others", "other runnable processes when each timed render started "
+                         "(procs_running of /proc/stat; empty where unknown)"),
+    Field("time_problems", "what makes the cell's timing doubtful: a spread over 10% of the "
+                           "median, outliers (> 3.5 robust sd), other processes running at "
+                           "over a quarter of its renders; empty: none",
+          column=Column("timing", "text")),
     Field("mse", "mean over pixels and channels of (render - reference)^2, averaged over seeds",
           column=Column("MSE", "sd")),
     Field("mse_sd"),
@@ -92,11 +110,29 @@ CELL_FIELDS: tuple[Field, ...] = (
                          "bias-like and noise parts"),
     Field("resolved", f"mse > {RESOLVED_FACTOR:g} x mse_floor; unresolved cells are left out "
                       "of fits and get no efficiency",
-          column=Column("", "flag", false="unresolved")),
+          column=Column("resolved", "flag", false="unresolved")),
     Field("rel_mse", f"mean (render - reference)^2 / (reference^2 + {REL_MSE_EPSILON:g})",
           column=Column("relMSE")),
     Field("rel_mse_sd"),
-    Field("efficiency", "1 / (mse_excess x seconds)", column=Column("efficiency")),
+    Field("efficiency", "1 / (mse_excess x seconds), on the median wall time of a whole "
+                        "render (fixed host cost included); efficiency_low/high: its 95% "
+                        "interval (delta method on the log: the seeds' MSE spread and the "
+                        "time's standard error, Student t at Welch-Satterthwaite degrees of "
+                        "freedom)",
+          column=Column("efficiency [95%]", "interval")),
+    Field("efficiency_low"),
+    Field("efficiency_high"),
+    Field("efficiency_ratio", "efficiency / the baseline sampler's at the same spp, with a "
+                              "95% interval (the two MSEs' spreads and the paired time ratio "
+                              "of renders timed in the same rounds); its inverse is the time "
+                              "needed for the baseline's error relative to the baseline's; an "
+                              "interval containing 1: no significant difference",
+          column=Column("eff. ratio [95%]", "interval")),
+    Field("efficiency_ratio_low"),
+    Field("efficiency_ratio_high"),
+    Field("efficiency_samples", "1 / (mse_excess x seconds_per_sample x pixels x spp): the "
+                                "efficiency on the per-sample cost alone (the sampler's fixed "
+                                "per-render cost removed, see the fits)"),
     Field("variance", "mean over pixels and channels of the per-pixel variance of the pixel "
                       "estimate across seeds (Welford, float64; 0 for a deterministic sampler)",
           column=Column("variance")),
@@ -105,6 +141,10 @@ CELL_FIELDS: tuple[Field, ...] = (
           column=Column("bias [95%]", "interval")),
     Field("bias_low"),
     Field("bias_high"),
+    Field("bias_z", "bias / its standard error"),
+    Field("biased", "the bias is significant: its two-sided p-value (normal, from bias_z) is "
+                    "rejected by Holm's step-down correction at 0.05 over every measured cell "
+                    "of the study"),
     Field("delta_e", "mean CIEDE2000 of the displayed images (linear sRGB clipped to [0, 1], "
                      "D65, Y_white = 1)",
           column=Column("\u0394E00")),
@@ -123,6 +163,8 @@ CELL_FIELDS: tuple[Field, ...] = (
     Field("aliasing", f"'aliased' if either z (mean over seeds) > {Z_THRESHOLD:g}, 'blue' if "
                       f"the ratio's z < -{Z_THRESHOLD:g}, else 'noise'; '{UNMEASURED}' (and the "
                       f"four measures NaN) for an image under {MIN_SIZE} pixels on a side",
+          column=Column("aliasing", "text")),
+    Field("verdict", "the aliasing verdict, with 'biased' added for a biased cell",
           column=Column("verdict", "text")),
     Field("nonfinite"),
     Field("per_seed", csv=False),
@@ -139,17 +181,30 @@ FIT_FIELDS: tuple[Field, ...] = (
     Field("cells_used"),
     Field("cells"),
     Field("slope_spp", "least-squares slope of log10(mse_excess) vs log10(spp) over the "
-                       "resolved cells' per-seed values (slope_*_se: its OLS standard error)",
-          column=Column("slope vs spp", "se")),
+                       "resolved cells' per-seed values (slope_*_se: its OLS standard error; "
+                       "slope_*_low/high: its 95% interval, Student t on n - 2 degrees of "
+                       "freedom)",
+          column=Column("slope vs spp [95%]", "interval")),
     Field("slope_spp_se"),
+    Field("slope_spp_low"),
+    Field("slope_spp_high"),
     Field("intercept_spp"),
     Field("r2_spp"),
-    Field("slope_seconds", "the same against log10(seconds)",
-          column=Column("slope vs time", "se")),
+    Field("slope_seconds", "the same against log10(seconds), each cell at its median time",
+          column=Column("slope vs time [95%]", "interval")),
     Field("slope_seconds_se"),
+    Field("slope_seconds_low"),
+    Field("slope_seconds_high"),
     Field("intercept_seconds"),
     Field("r2_seconds"),
     Field("efficiency_max"),
+    Field("fixed_seconds", "the sampler's fixed cost per render: the intercept of the "
+                           "least-squares line seconds = fixed + seconds_per_sample x samples "
+                           "over every timed render of its cells (samples = pixels x spp; "
+                           "*_se: OLS standard errors)"),
+    Field("fixed_seconds_se"),
+    Field("seconds_per_sample", "the slope of that line: the cost of one more sample"),
+    Field("seconds_per_sample_se"),
 )
 
 

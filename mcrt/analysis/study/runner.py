@@ -12,6 +12,7 @@ import os
 import platform
 import time
 import uuid
+import zlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -22,10 +23,12 @@ from ...core.executor import cluster_status
 from ...core.job import Job, run_job
 from ...core.progress import Progress
 from ...core.stats import PixelStats
+from ...core.timing import Sample, machine, round_orders, timed
 from ...errors import McrtError
 from ..aliasing import AliasingScore, aliasing_score, measurable
 from ..filter_noise import filter_correlation, variance_factor
 from ..metrics import REL_MSE_EPSILON, delta_e_2000, error_map, mse, reference_noise_floor, rel_mse
+from .conclude import conclude, timing_verdict
 from .config import WARMUP_SEED, SamplerSpec, SceneSpec, StudyConfig, cell_keys, check_config
 from .store import StudyState, reference_fingerprint
 from .summary import (
@@ -34,6 +37,7 @@ from .summary import (
     cell_images,
     cell_renders,
     fit_sampler,
+    retime_cell,
     summarise_cell,
 )
 
@@ -82,6 +86,13 @@ class StudyResult:
     #: every measured cell's images (mean, first seed, variance), keyed like
     #: :meth:`cell`: (scene, sampler label, spp requested)
     renders: dict[tuple[str, str, int], CellRenders] = field(default_factory=dict)
+    #: how time was taken and whether it held (:func:`~.conclude.timing_verdict`)
+    timing: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def biased(self) -> list[dict[str, Any]]:
+        """The cells whose bias is significant (Holm-corrected over the study)."""
+        return [c for c in self.cells if c["biased"]]
 
     @property
     def partial(self) -> bool:
@@ -136,24 +147,31 @@ def environment() -> dict[str, Any]:
     drjit_version = dr.__version__  # type: ignore[attr-defined]  # not in drjit's stubs
     return {"mcrt": __version__, "mitsuba": mi.__version__, "drjit": drjit_version,
             "variant": mi.variant(), "python": platform.python_version(),
-            "platform": platform.platform(), "cpus": os.cpu_count(),
+            "platform": platform.platform(), "cpus": os.cpu_count(), "machine": machine(),
             "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
 
 
 def run_study(config: StudyConfig, progress: bool = False,
-              state: StudyState | None = None, executor: Any = None) -> StudyResult:
+              state: StudyState | None = None, executor: Any = None,
+              retime: bool = False) -> StudyResult:
     """Run every cell of a validated study; see :mod:`mcrt.analysis.study` for
     what is measured.
 
     With ``state``, cells saved there are taken instead of rendered and every
-    cell finished now is added to it. Ctrl-C raises :class:`StudyInterrupted`
-    with the result of the cells finished so far.
+    cell finished now is added to it. With ``retime`` the cells saved in
+    ``state`` are timed again (the timing protocol's rounds, timing-only renders)
+    and keep their errors; cells not saved are left out. Ctrl-C raises
+    :class:`StudyInterrupted` with the result of the cells finished so far.
     """
     if not config.effective_spp:
         check_config(config)
+    if retime and (state is None or not state.cells):
+        raise McrtError("nothing to retime: no measured cells are saved for this study; "
+                        "run it without --retime first")
     bar = Progress(config.renders, progress, unit="render", desc="study", leave=True)
     run = _Run(config, state, bar)
     run.executor = executor
+    run.retiming = retime
     try:
         for spec in config.scenes:
             run.scene(spec)
@@ -213,8 +231,14 @@ class _Scene:
 
 @dataclass(frozen=True)
 class SeedTask:
-    """What the seeds of a scene's cells need besides the scene and the task's
-    index: task ``i`` is seed ``seeds[i % len(seeds)]`` of ``cells[i // len(seeds)]``."""
+    """What the renders of one group of a scene's cells (every pending sampler at
+    one sample count) need besides the scene and the task's index.
+
+    The group's renders come in rounds (:mod:`mcrt.core.timing`): round ``r``
+    renders every cell once, in the order ``orders[r]``, so task ``i`` is cell
+    ``orders[i // n][i % n]`` (``n`` cells) in round ``i // n``. Rounds before
+    ``scored`` render the study's seeds (round ``r``: ``seeds[r]``) and are scored;
+    later rounds (or all, for ``mcrt compare --retime``) are timed only."""
 
     params: tuple[tuple[str, str], ...]
     cells: tuple[tuple[SamplerSpec, int], ...]  # (sampler, spp) of each cell, in order
@@ -222,15 +246,30 @@ class SeedTask:
     run: str  # the study run: each process warms a cell up once per run
     aliasing_draws: int
     correlation: np.ndarray  # the film filter's pixel correlation (aliasing null model)
+    orders: tuple[tuple[int, ...], ...] = ()  # the cells' order in every round
+    scored: int = 0  # rounds whose renders are scored (the seeds')
+
+    @property
+    def tasks(self) -> int:
+        return len(self.cells) * len(self.orders)
+
+    def slot(self, index: int) -> tuple[int, int]:
+        """(cell, round) of task ``index``."""
+        r, position = divmod(index, len(self.cells))
+        return self.orders[r][position], r
 
 
 @dataclass
 class SeedRender:
-    """One seed's render and its metrics, as a task returns it (scored where it
-    was rendered: the client only folds)."""
+    """One render of a cell, as a task returns it: its time, and for a seed's
+    render its metrics and image (scored where it was rendered: the client only
+    folds)."""
 
-    values: dict[str, Any]  # the per-seed values of the study's cell fields
-    rgb: np.ndarray  # (H, W, 3) float32, linear sRGB
+    cell: int  # index into the task's cells
+    round: int
+    time: Sample
+    values: dict[str, Any] | None = None  # the per-seed values of the study's cell fields
+    rgb: np.ndarray | None = None  # (H, W, 3) float32, linear sRGB
 
 
 #: (run, scene digest, sampler label, spp) of the cells this process warmed up.
@@ -239,16 +278,20 @@ _warmed: set[tuple[str, str, str, int]] = set()
 
 def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
                 reference: np.ndarray) -> SeedRender:
-    """Seed ``index`` of a cell, rendered as ``mcrt render`` renders it and
-    scored against ``reference`` (the mean image); the first task of a cell in
-    a process first renders an untimed warm-up (kernels compiled and cached), so
+    """Task ``index`` of a group: one render of a cell, rendered as ``mcrt render``
+    renders it, timed by :func:`mcrt.core.timing.timed`, and (in a scored round)
+    scored against ``reference`` (the mean image). The first task of a cell in a
+    process first renders an untimed warm-up (kernels compiled and cached), so
     every timed render is warm."""
+    import drjit as dr
+
     from ...core import render  # looked up now: tests wrap render_film
     from ...core.sampling import make_sampler, quiet_sampler_warnings
     from ...render.loaded import planned_scene
 
     planned = planned_scene(scene, dict(task.params))
-    spec, spp = task.cells[index // len(task.seeds)]
+    cell_index, r = task.slot(index)
+    spec, spp = task.cells[cell_index]
     cell = (task.run, getattr(scene, "digest", ""), spec.label, spp)
 
     def run(seed: int) -> FilmRender:
@@ -261,11 +304,15 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
     if cell not in _warmed:
         run(WARMUP_SEED)  # untimed
         _warmed.add(cell)
-    seed = task.seeds[index % len(task.seeds)]
-    rendered = run(seed)
+    seed = task.seeds[r % len(task.seeds)]
+    rendered, sample = timed(lambda: run(seed), dr.sync_thread)
+    if r >= task.scored:
+        return SeedRender(cell_index, r, sample)
     rgb = np.asarray(rendered.rgb, np.float32)
-    return SeedRender(score_seed(rgb, reference, seed, rendered.spp, rendered.seconds,
-                                 task.aliasing_draws, task.correlation), rgb)
+    values = score_seed(rgb, reference, seed, rendered.spp, sample.wall, task.aliasing_draws,
+                        task.correlation)
+    values["cpu_seconds"] = sample.cpu
+    return SeedRender(cell_index, r, sample, values, rgb)
 
 
 def score_seed(rgb32: np.ndarray, reference: np.ndarray, seed: int, spp: int, seconds: float,
@@ -314,6 +361,8 @@ class _Run:
         self.renders: dict[tuple[str, str, int], CellRenders] = {}
         #: runs the seeds of a cell (:mod:`mcrt.core.executor`; in-process by default)
         self.executor: Any = None
+        #: time the saved cells again instead of measuring pending ones
+        self.retiming = False
         #: this run's name for its tasks (each process warms a cell up once per run)
         self.token = uuid.uuid4().hex
         #: the cell being rendered (see StudyResult.interrupted)
@@ -325,22 +374,34 @@ class _Run:
         return self.before + time.perf_counter() - self.start
 
     def result(self, interrupted: dict[str, Any] | None = None) -> StudyResult:
-        fits = [fit_sampler(scene, sampler.label, self.cells)
+        pixels = {name: ref.width * ref.height for name, ref in self.references.items()}
+        fits = [fit_sampler(scene, sampler.label, self.cells, pixels[scene])
                 for scene in self.references for sampler in self.config.samplers]
-        return StudyResult(config=self.config, references=self.references, cells=self.cells,
+        order = {key: i for i, key in enumerate(cell_keys(self.config))}
+        measured = sorted(self.cells, key=lambda c: order[(c["scene"], c["sampler"],
+                                                           c["spp_requested"])])
+        cells = conclude(measured, fits, self.config.baseline, pixels)
+        env = {**self.env, "machine_end": machine()}
+        return StudyResult(config=self.config, references=self.references, cells=cells,
                            fits=fits, reference_images=self.reference_images,
-                           images=self.images, environment=self.env, seconds=self.seconds(),
+                           images=self.images, environment=env, seconds=self.seconds(),
                            interrupted=interrupted, resumed_cells=self.resumed,
-                           renders=self.renders)
+                           renders=self.renders, timing=timing_verdict(cells, env))
 
     def scene(self, spec: SceneSpec) -> None:
-        """Every cell of one scene, against its reference."""
+        """Every cell of one scene, against its reference: one group of cells per
+        sample count (every sampler at that spp, timed in interleaved rounds)."""
         ref = self.reference(spec)
-        pending = tuple((sampler, spp) for sampler in self.config.samplers
-                        for spp in self.config.spp
-                        if not self.resume(spec.name, sampler.label, spp))
-        if pending:
-            self.measure(_Scene(spec), pending, ref)
+        scene = _Scene(spec)
+        for spp in self.config.spp:
+            if self.retiming:
+                group = tuple((sampler, spp) for sampler in self.config.samplers
+                              if self.resume(spec.name, sampler.label, spp))
+            else:
+                group = tuple((sampler, spp) for sampler in self.config.samplers
+                              if not self.resume(spec.name, sampler.label, spp))
+            if group:
+                self.measure(scene, group, ref)
 
     def reference(self, spec: SceneSpec) -> _Reference:
         """Render (or take from the cache) the reference of a scene and record it."""
@@ -396,58 +457,75 @@ class _Run:
 
     def measure(self, scene: _Scene, cells: tuple[tuple[SamplerSpec, int], ...],
                 ref: _Reference) -> None:
-        """Render the scene's pending cells (each: a warm-up, then every seed),
-        summarise and record each as soon as its seeds are in.
+        """Render one group of a scene's cells (every pending sampler at one spp):
+        each cell's warm-up, then :attr:`StudyConfig.rounds` rounds that render
+        every cell once in a shuffled order (the seeds' renders first, scored,
+        then timing-only ones); record each cell once its rounds are in.
 
-        The cells' seeds are the tasks of one job, folded in order (cell by cell,
-        seed by seed); each task renders on whichever process (or cluster worker)
-        runs it, so on a cluster the cells run side by side."""
-        name, seeds = scene.spec.name, self.config.seeds
-        k = len(seeds)
+        The group's renders are the tasks of one job, folded in task order; each
+        task renders on whichever process (or cluster worker) runs it. With
+        :attr:`retiming` every round is timing-only and the saved cells get new
+        times (their errors are kept)."""
+        name, seeds, rounds = scene.spec.name, self.config.seeds, self.config.rounds
+        k, spp = len(seeds), cells[0][1]
         scene.planned()
+        orders = round_orders(len(cells), rounds, zlib.crc32(f"{name}\0{spp}".encode()))
+        task = SeedTask(tuple(sorted(scene.spec.params.items())), cells, tuple(seeds),
+                        self.token, self.config.aliasing_draws, scene.pixel_correlation(),
+                        tuple(tuple(o) for o in orders), 0 if self.retiming else k)
 
-        def start(cell: int) -> None:
-            sampler, spp = cells[cell]
-            self.bar.describe(f"{name}: {sampler.label} {spp} spp")
-            self.current = {"scene": name, "sampler": sampler.label, "spp": spp,
-                            "seeds_done": 0, "seeds_total": k}
-
-        def on_fold(done: int, rendered: list[SeedRender]) -> None:
-            cell, seed = divmod(done - 1, k)
-            assert self.current is not None
-            self.current["seeds_done"] = seed + 1
+        def on_fold(done: int, folded: list[SeedRender]) -> None:
+            cell, r = task.slot(done - 1)
+            self.current = {"scene": name, "sampler": cells[cell][0].label, "spp": spp,
+                            "seeds_done": min(r + 1, k), "seeds_total": k}
+            self.bar.describe(f"{name}: {spp} spp, round {r + 1}/{rounds}")
             if self.executor is not None:
                 self.bar.postfix(cluster_status(self.executor).strip(", "))
-            self.bar.update(2 if seed == 0 else 1)  # the first seed's task warmed up too
-            if seed + 1 == k:
-                self.record(scene, *cells[cell], ref, rendered[-k:])
-                rendered.clear()  # the finished cell's images are recorded
-                if cell + 1 < len(cells):
-                    start(cell + 1)
+            self.bar.update(2 if r == 0 else 1)  # a cell's first task warmed it up too
 
-        start(0)
-        task = SeedTask(tuple(sorted(scene.spec.params.items())), cells, tuple(seeds),
-                        self.token, self.config.aliasing_draws, scene.pixel_correlation())
+        self.current = {"scene": name, "sampler": cells[0][0].label, "spp": spp,
+                        "seeds_done": 0, "seeds_total": k}
+        self.bar.describe(f"{name}: {spp} spp")
         job: Job[SeedRender, list[SeedRender]] = Job(
-            f"{name}/cells", len(cells) * k, functools.partial(render_seed, task), _collect,
+            f"{name}/{spp}spp", task.tasks, functools.partial(render_seed, task), _collect,
             shared={"scene": scene.source(), "reference": ref.mean})
-        run_job(job, self.executor, on_fold=on_fold)
+        folded = run_job(job, self.executor, on_fold=on_fold) or []
+        by_cell: list[list[SeedRender]] = [[] for _ in cells]
+        for rendered in folded:  # in task order: every cell's renders in round order
+            by_cell[rendered.cell].append(rendered)
+        for (sampler, _), renders in zip(cells, by_cell):
+            if self.retiming:
+                self.retime(name, sampler, spp, [r.time for r in renders])
+            else:
+                self.record(scene, sampler, spp, ref, renders)
+        self.current = None
+
+    def retime(self, scene: str, sampler: SamplerSpec, spp: int, times: list[Sample]) -> None:
+        """Give a saved cell the times of this run (``mcrt compare --retime``)."""
+        index = next(i for i, c in enumerate(self.cells)
+                     if (c["scene"], c["sampler"], c["spp_requested"]) == (scene, sampler.label,
+                                                                            spp))
+        cell = self.cells[index] = retime_cell(self.cells[index], times)
+        if self.state is not None:
+            self.state.add(cell, None, self.seconds())
 
     def record(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference,
                rendered: list[SeedRender]) -> None:
         """Score a cell's seeds, summarise the cell and record it (and save it)."""
         name, k = scene.spec.name, len(self.config.seeds)
         correlation = scene.pixel_correlation()
-        per_seed = [r.values for r in rendered]
+        scored = [r for r in rendered if r.values is not None]
+        per_seed = [r.values for r in scored if r.values is not None]
         for values in per_seed:
             if values["nonfinite"]:  # counted and reported; metrics see zero error there
                 log.warning("%s/%s/%d spp seed %d: %d pixels are NaN/Inf", name,
                             sampler.label, spp, values["seed"], values["nonfinite"])
-        renders = [np.asarray(r.rgb, dtype=np.float64) for r in rendered]
+        renders = [np.asarray(r.rgb, dtype=np.float64) for r in scored]
         stats = PixelStats.from_images(renders)
         cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
                               ref.floor, k, rfilter=scene.spec.rfilter,
-                              variance_factor=variance_factor(correlation))
+                              variance_factor=variance_factor(correlation),
+                              times=[r.time for r in rendered])
         images = None
         if spp == self.config.image_spp:
             images = self.images[(name, sampler.label)] = cell_images(renders, stats, ref.mean)

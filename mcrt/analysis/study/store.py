@@ -4,8 +4,8 @@
 Every finished cell is saved atomically, keyed by :func:`study_key` (the
 configuration's content, the scenes' content and the software versions); a
 run with the same key takes the saved cells instead of rendering them again
-(cells, not seeds, are the unit of resume: the seeds of an interrupted cell
-are rendered again).
+(the cells of a group, every sampler at one spp, finish together: the renders
+of an interrupted group are rendered again).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ log = logging.getLogger("mcrt.compare")
 STATE_DIR = ".mcrt-resume"
 
 #: Version of the state's layout; a state of another format is ignored.
-STATE_FORMAT = 1
+STATE_FORMAT = 2
 
 
 def study_key(config: StudyConfig) -> str:
@@ -40,12 +40,13 @@ def study_key(config: StudyConfig) -> str:
 
     The parsed configuration (not its bytes: comments, the study's name and
     description do not change a measurement) and the content of every scene file
-    (with the files it includes, :func:`~mcrt.core.job.scene_digest`); the key adds
+    (with the files it includes, :func:`~mcrt.core.job.scene_digest`; the baseline
+    only changes derived ratios, so it is left out too); the key adds
     the variant and the versions of mcrt, Mitsuba and Dr.Jit. A saved state with
     another key belongs to another study and is never resumed.
     """
     study = config.as_dict()
-    for key in ("name", "description", "config_path"):
+    for key in ("name", "description", "config_path", "baseline"):
         study.pop(key, None)
     return content_key({"kind": "study", "format": STATE_FORMAT, "study": study,
                         "scenes": [scene_digest(s.path, s.params) for s in config.scenes]})

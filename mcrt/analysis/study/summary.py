@@ -8,15 +8,18 @@ A cell is a dict of the fields declared in :data:`~.fields.CELL_FIELDS`
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ...core.stats import PixelStats
+from ...core.timing import Sample, fit_cost, summarise
 from ..aliasing import UNMEASURED, Z_THRESHOLD
-from ..convergence import efficiency, fit_loglog
+from ..convergence import NONE, efficiency_estimate, excess_mse, fit_loglog, typical_time
 from ..metrics import bias, error_map, mse, variance_map
+from ..significance import t_quantile
 from .config import SamplerSpec
 from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, record
 
@@ -67,13 +70,18 @@ def _verdict(ratio_z: float, peak_z: float) -> str:
 def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[dict[str, Any]],
                    stats: PixelStats, ref_mean: np.ndarray, ref_var: np.ndarray,
                    floor: float, k: int, rfilter: str = "",
-                   variance_factor: float = 1.0) -> dict[str, Any]:
+                   variance_factor: float = 1.0,
+                   times: Sequence[Sample] | None = None) -> dict[str, Any]:
     """The cell of (scene, sampler, spp) from its per-seed records and the pixel
     moments of its ``k`` renders, against a reference (mean, variance, noise floor);
     ``rfilter``: the film filter of a ``filters`` study ("" otherwise);
     ``variance_factor``: what the film's filter multiplies the variance of a mean
-    over pixels by (:func:`mcrt.analysis.filter_noise.variance_factor`; 1: box)."""
-    seconds, seconds_sd = _mean_sd([r["seconds"] for r in per_seed])
+    over pixels by (:func:`mcrt.analysis.filter_noise.variance_factor`; 1: box);
+    ``times``: every timed render of the cell in round order (default: the
+    seeds' own renders). The study-wide fields (ratios to the baseline, the bias
+    flag, the verdict) are filled by :func:`~.conclude.conclude`."""
+    if times is None:
+        times = [Sample(r["seconds"], r.get("cpu_seconds", math.nan)) for r in per_seed]
     mse_mean, mse_sd = _mean_sd([r["mse"] for r in per_seed])
     rel_mean, rel_sd = _mean_sd([r["rel_mse"] for r in per_seed])
     de_mean, de_sd = _mean_sd([r["delta_e"] for r in per_seed])
@@ -85,26 +93,56 @@ def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[di
     b = bias(stats.mean, ref_mean, image_variance=stats.variance / k, reference_variance=ref_var,
              variance_factor=variance_factor, correlated_channels=True)
     ratio_z, peak_z = _mean(per_seed, "ratio_z"), _mean(per_seed, "peak_z")
-    return record(CELL_FIELDS, {
+    nan = math.nan
+    values = {
         "scene": scene, "filter": rfilter, "sampler": sampler.label, "plugin": sampler.name,
         "params": dict(sampler.params), "spp_requested": spp,
         "spp": int(per_seed[0]["spp"]), "seeds": [r["seed"] for r in per_seed],
-        "seconds": seconds, "seconds_sd": seconds_sd,
-        "seconds_min": float(min(r["seconds"] for r in per_seed)),
         "mse": mse_mean, "mse_sd": mse_sd, "mse_floor": floor, "mse_excess": excess,
         "mse_of_mean": mse(stats.mean, ref_mean),
         "resolved": resolved,
         "rel_mse": rel_mean, "rel_mse_sd": rel_sd,
-        "efficiency": efficiency(excess, seconds) if resolved else float("nan"),
+        "efficiency_ratio": nan, "efficiency_ratio_low": nan, "efficiency_ratio_high": nan,
+        "efficiency_samples": nan,
         "variance": float(variance_map(stats.variance).mean()),
         "bias": b.value, "bias_low": b.low, "bias_high": b.high,
+        "bias_z": b.value / b.standard_error if b.standard_error > 0 else
+        (0.0 if b.value == 0 else math.copysign(math.inf, b.value)),
+        "biased": False, "verdict": "",
         "delta_e": de_mean, "delta_e_sd": de_sd,
         "aliasing_ratio": _mean(per_seed, "ratio"), "aliasing_ratio_z": ratio_z,
         "aliasing_peak": _mean(per_seed, "peak"), "aliasing_peak_z": peak_z,
         "aliasing": _verdict(ratio_z, peak_z),
         "nonfinite": int(sum(r["nonfinite"] for r in per_seed)),
         "per_seed": per_seed,
-    })
+    }
+    return record(CELL_FIELDS, {**values, **_time_fields(values, times)})
+
+
+def retime_cell(cell: dict[str, Any], times: Sequence[Sample]) -> dict[str, Any]:
+    """``cell`` with the times of other timed renders (``mcrt compare --retime``):
+    its errors are kept, its time and efficiency fields made anew."""
+    return record(CELL_FIELDS, {**cell, **_time_fields(cell, times)})
+
+
+def _time_fields(cell: dict[str, Any], times: Sequence[Sample]) -> dict[str, Any]:
+    """The time fields of a cell from its timed renders (:mod:`mcrt.core.timing`:
+    median, robust spread, 95% interval, CPU time, what disturbed them) and its
+    efficiency with a 95% interval (:func:`~mcrt.analysis.convergence.efficiency_estimate`)."""
+    summary = summarise(times)
+    wall = [t.wall for t in times]
+    time = typical_time(wall)
+    low, high = time.interval()
+    eff = efficiency_estimate(excess_mse([r["mse"] for r in cell["per_seed"]],
+                                         cell["mse_floor"]), time) \
+        if cell["resolved"] else NONE
+    eff_low, eff_high = eff.interval()
+    return {"seconds": summary.median, "seconds_low": low, "seconds_high": high,
+            "seconds_sd": summary.spread, "seconds_min": summary.minimum,
+            "cpu_seconds": summary.cpu_median, "times": wall,
+            "cpu_times": [t.cpu for t in times], "time_others": [t.others for t in times],
+            "time_problems": "; ".join(summary.problems()),
+            "efficiency": eff.value, "efficiency_low": eff_low, "efficiency_high": eff_high}
 
 
 def cell_images(renders: list[np.ndarray], stats: PixelStats,
@@ -117,17 +155,21 @@ def cell_images(renders: list[np.ndarray], stats: PixelStats,
                       std=np.sqrt(variance_map(stats.variance)).astype(np.float32))
 
 
-def fit_sampler(scene: str, sampler: str, cells: list[dict[str, Any]]) -> dict[str, Any]:
+def fit_sampler(scene: str, sampler: str, cells: list[dict[str, Any]],
+                pixels: int = 0) -> dict[str, Any]:
     """Log-log slopes of the excess MSE vs spp and vs seconds over the resolved
     cells' per-seed values (NaN unless at least two sample counts are resolved:
-    the timing scatter of one cell's seeds is not a slope)."""
+    the timing scatter of one cell's seeds is not a slope; a cell's x for the
+    time slope is its median time), and the sampler's cost split into a fixed
+    per-render part and a per-sample part (:func:`mcrt.core.timing.fit_cost`
+    over every timed render of every cell; ``pixels``: the film's, 0 to skip)."""
     mine = [c for c in cells if c["scene"] == scene and c["sampler"] == sampler]
     used = [c for c in mine if c["resolved"]]
     x_spp, x_sec, y = [], [], []
     for c in used:
         for r in c["per_seed"]:
             x_spp.append(c["spp"])
-            x_sec.append(r["seconds"])
+            x_sec.append(c["seconds"])
             y.append(r["mse"] - c["mse_floor"])
     out: dict[str, Any] = {"scene": scene, "sampler": sampler, "points": len(y),
                            "cells_used": len(used), "cells": len(mine)}
@@ -136,6 +178,11 @@ def fit_sampler(scene: str, sampler: str, cells: list[dict[str, Any]]) -> dict[s
         out.update(_slope(key, x, y, sample_counts))
     effs = [c["efficiency"] for c in mine if math.isfinite(c["efficiency"])]
     out["efficiency_max"] = max(effs) if effs else float("nan")
+    samples = [c["spp"] * pixels for c in mine for _ in c["times"]]
+    cost = fit_cost(samples, [t for c in mine for t in c["times"]]) if pixels else fit_cost([], [])
+    out.update({"fixed_seconds": cost.fixed, "fixed_seconds_se": cost.fixed_se,
+                "seconds_per_sample": cost.per_unit,
+                "seconds_per_sample_se": cost.per_unit_se})
     return record(FIT_FIELDS, out)
 
 
@@ -148,7 +195,9 @@ def _slope(key: str, x: list[float], y: list[float], sample_counts: int) -> dict
         fit = fit_loglog(x, y)
     except ValueError:
         nan = float("nan")
-        return {f"slope_{key}": nan, f"slope_{key}_se": nan, f"intercept_{key}": nan,
-                f"r2_{key}": nan}
+        return {f"slope_{key}": nan, f"slope_{key}_se": nan, f"slope_{key}_low": nan,
+                f"slope_{key}_high": nan, f"intercept_{key}": nan, f"r2_{key}": nan}
+    half = t_quantile(0.975, fit.n - 2) * fit.slope_se if fit.n > 2 else float("nan")
     return {f"slope_{key}": fit.slope, f"slope_{key}_se": fit.slope_se,
+            f"slope_{key}_low": fit.slope - half, f"slope_{key}_high": fit.slope + half,
             f"intercept_{key}": fit.intercept, f"r2_{key}": fit.r2}

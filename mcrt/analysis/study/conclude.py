@@ -1,0 +1,161 @@
+"""What a study concludes across its cells: ratios to the baseline, bias flags, timing.
+
+A cell's own fields come from its renders (:mod:`.summary`); these need the
+other cells too, so they are derived whenever a result is made (a resumed or
+retimed study derives them afresh):
+
+* ``efficiency_ratio`` (and its 95% interval): a cell's efficiency over the
+  baseline sampler's at the same scene and sample count
+  (:func:`~mcrt.analysis.convergence.efficiency_ratio`, times paired round by
+  round); ``efficiency_samples``: the efficiency on the sampler's per-sample
+  cost (its fit's ``seconds_per_sample``);
+* ``biased``: the cell's bias z is significant after Holm's correction over every
+  measured cell of the study (:func:`mcrt.analysis.significance.holm`; family-wise
+  false-alarm rate 5% under the null that every sampler is unbiased);
+* ``verdict``: the aliasing verdict, plus "biased";
+* :func:`timing_verdict`: whether the study's timing held (cells whose timing
+  was unstable or loaded, the machine's load before and after).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ...core.timing import LOADED_SHARE
+from ..convergence import efficiency_ratio, excess_mse, paired_time_ratio
+from ..significance import holm, two_sided_p
+from .fields import CELL_FIELDS, record
+
+#: Family-wise false-alarm rate of the study's bias flags.
+BIAS_ALPHA = 0.05
+
+
+def conclude(cells: list[dict[str, Any]], fits: list[dict[str, Any]], baseline: str,
+             pixels: dict[str, int]) -> list[dict[str, Any]]:
+    """The cells with their study-wide fields filled (new records, same order);
+    ``pixels``: each scene's film pixels (for the per-sample efficiency)."""
+    flags = holm([two_sided_p(c["bias_z"]) for c in cells], BIAS_ALPHA)
+    base = {(c["scene"], c["spp_requested"]): c for c in cells if c["sampler"] == baseline}
+    cost = {(f["scene"], f["sampler"]): f["seconds_per_sample"] for f in fits}
+    out = []
+    for cell, biased in zip(cells, flags):
+        values = {**cell, "biased": bool(biased), "verdict": _verdict(cell, bool(biased))}
+        values.update(_ratio(cell, base.get((cell["scene"], cell["spp_requested"]))))
+        per_sample = cost.get((cell["scene"], cell["sampler"]), math.nan)
+        product = cell["mse_excess"] * per_sample * pixels.get(cell["scene"], 0) * cell["spp"]
+        values["efficiency_samples"] = (1.0 / product if cell["resolved"] and product > 0
+                                        else math.nan)
+        out.append(record(CELL_FIELDS, values))
+    return out
+
+
+def _verdict(cell: dict[str, Any], biased: bool) -> str:
+    return f"{cell['aliasing']}; biased" if biased else str(cell["aliasing"])
+
+
+def _ratio(cell: dict[str, Any], base: dict[str, Any] | None) -> dict[str, float]:
+    nan = math.nan
+    if base is None or not (cell["resolved"] and base["resolved"]):
+        return {"efficiency_ratio": nan, "efficiency_ratio_low": nan,
+                "efficiency_ratio_high": nan}
+    if cell["sampler"] == base["sampler"]:
+        return {"efficiency_ratio": 1.0, "efficiency_ratio_low": 1.0,
+                "efficiency_ratio_high": 1.0}
+    ratio = efficiency_ratio(
+        excess_mse([r["mse"] for r in cell["per_seed"]], cell["mse_floor"]),
+        excess_mse([r["mse"] for r in base["per_seed"]], base["mse_floor"]),
+        paired_time_ratio(cell["times"], base["times"]))
+    low, high = ratio.interval()
+    return {"efficiency_ratio": ratio.value, "efficiency_ratio_low": low,
+            "efficiency_ratio_high": high}
+
+
+def timing_verdict(cells: list[dict[str, Any]], environment: dict[str, Any]) -> dict[str, Any]:
+    """Whether the study's times can be trusted: the cells whose timing was
+    doubtful (``time_problems``), the share of timed renders that started with
+    other processes runnable, and the machine's load before and after."""
+    doubtful = [{"scene": c["scene"], "sampler": c["sampler"], "spp": c["spp"],
+                 "problems": c["time_problems"]} for c in cells if c["time_problems"]]
+    others = [o for c in cells for o in c["time_others"] if o is not None]
+    loaded = sum(1 for o in others if o) / len(others) if others else math.nan
+    disturbed = bool(doubtful) or (bool(others) and loaded > LOADED_SHARE)
+    start = environment.get("machine", {})
+    end = environment.get("machine_end", {})
+    return {"protocol": "warm-up per cell, then interleaved rounds in a shuffled order per "
+                        "round and sample count; median wall time; intervals by the delta "
+                        "method (Student t)",
+            "disturbed": disturbed, "doubtful_cells": doubtful, "loaded_share": loaded,
+            "loadavg_start": start.get("loadavg"), "loadavg_end": end.get("loadavg"),
+            "cpus_usable": start.get("cpus_usable")}
+
+
+
+
+
+# --------------------------------------------------------------------------- in words
+
+
+def _g(value: float, spec: str = ".3g") -> str:
+    return format(value, spec) if math.isfinite(value) else "-"
+
+
+def interval_text(value: float, low: float, high: float, spec: str = ".3g") -> str:
+    """``value [low, high]`` (``-`` for NaN)."""
+    if not math.isfinite(value):
+        return "-"
+    return f"{_g(value, spec)} [{_g(low, spec)}, {_g(high, spec)}]"
+
+
+def bias_lines(cells: list[dict[str, Any]]) -> list[str]:
+    """One line per (scene, sampler) with biased cells: where, how much, how sure."""
+    measured = sum(1 for c in cells if math.isfinite(two_sided_p(c["bias_z"])))
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for c in cells:
+        if c["biased"]:
+            groups.setdefault((c["scene"], c["sampler"]), []).append(c)
+    lines = []
+    for (scene, sampler), found in groups.items():
+        parts = ", ".join(f"{c['spp']} spp: {c['bias']:+.2e} ({abs(c['bias_z']):.1f} sigma)"
+                          for c in found)
+        lines.append(f"{sampler} is biased on {scene} at {parts}; Holm-corrected over "
+                     f"{measured} cells at {BIAS_ALPHA:g}")
+    return lines
+
+
+def timing_lines(timing: dict[str, Any], retime: str = "") -> list[str]:
+    """What disturbed the study's timing, naming the cells (empty: it held)."""
+    if not timing.get("disturbed"):
+        return []
+    lines = []
+    doubtful = timing.get("doubtful_cells", [])
+    if doubtful:
+        shown = "; ".join(f"{d['scene']}/{d['sampler']}/{d['spp']} spp ({d['problems']})"
+                          for d in doubtful[:8])
+        more = f" and {len(doubtful) - 8} more" if len(doubtful) > 8 else ""
+        lines.append(f"timing was disturbed in {len(doubtful)} cells: {shown}{more}")
+    share = timing.get("loaded_share", math.nan)
+    if isinstance(share, float) and math.isfinite(share) and share > LOADED_SHARE:
+        lines.append(f"other processes were runnable at the start of {100 * share:.0f}% of "
+                     f"the timed renders (load average {timing.get('loadavg_start')} -> "
+                     f"{timing.get('loadavg_end')} on {timing.get('cpus_usable')} CPUs)")
+    lines.append("ratios pair renders timed in the same round and are the figures to trust; "
+                 + (f"to time again without measuring the errors again: {retime}" if retime
+                    else "time again on a quiet machine (mcrt compare --retime)"))
+    return lines
+
+
+def ratio_sentence(cell: dict[str, Any], baseline: str) -> str:
+    """"X needs 0.62x [0.55, 0.70] of B's time for the same error at N spp"."""
+    value = cell["efficiency_ratio"]
+    low, high = cell["efficiency_ratio_low"], cell["efficiency_ratio_high"]
+    if not math.isfinite(value) or cell["sampler"] == baseline:
+        return ""
+    text = (f"{cell['sampler']} needs {_g(1 / value, '.2f')}x [{_g(1 / high, '.2f')}, "
+            f"{_g(1 / low, '.2f')}] of {baseline}'s time for the same error at {cell['spp']} "
+            f"spp")
+    if low <= 1.0 <= high:
+        text += " (no significant difference)"
+    return text
+__all__ = ["BIAS_ALPHA", "bias_lines", "conclude", "interval_text", "ratio_sentence",
+           "timing_lines", "timing_verdict"]
