@@ -197,7 +197,12 @@ def test_adaptive_heat_map_has_a_title_and_a_colour_bar(tmp_path):
 
 
 # --------------------------------------------------------------------------- timings and first runs
-def test_demo_times_each_render_after_an_untimed_warm_up(tmp_path, capsys, monkeypatch):
+def test_demo_times_by_the_protocol_warm_up_then_interleaved_rounds(tmp_path, capsys,
+                                                                    monkeypatch):
+    """Per scene: the reference, an untimed warm-up of each sampler, then 3
+    rounds rendering every sampler once in the protocol's shuffled order."""
+    from mcrt.core.timing import round_orders
+
     calls: list[tuple[str, int, bool]] = []
 
     def fake_render(scene, sampler, seed, progress=True):
@@ -210,12 +215,11 @@ def test_demo_times_each_render_after_an_untimed_warm_up(tmp_path, capsys, monke
     monkeypatch.setattr(demo_cmd, "render_film", fake_render)
     code, out, _ = run_cli(capsys, "demo", "--samplers", "independent,jittered",
                            "--reference-factor", "1", "-o", str(tmp_path), "-q")
-    assert code == 0 and "times exclude kernel compilation" in out
-    from mcrt.analysis.study.config import WARMUP_SEED
-
+    assert code == 0 and "times: median of 3 interleaved rounds" in out
+    names = ["independent", "jittered"]
+    rounds = [(names[i], 1, False) for order in round_orders(2, 3) for i in order]
     per_scene = [("jittered", 0, False),  # the reference
-                 ("independent", WARMUP_SEED, False), ("independent", 1, False),
-                 ("jittered", WARMUP_SEED, False), ("jittered", 1, False)]
+                 ("independent", 1, False), ("jittered", 1, False), *rounds]
     assert calls == per_scene * len(demo_cmd.DEMO_SCENES)
 
 

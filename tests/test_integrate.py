@@ -192,3 +192,30 @@ def test_integrate_command_errors_are_one_line(tmp_path, capsys, argv, message):
     code, _, stderr = run_cli(capsys, *argv, "-o", str(tmp_path / "x"))
     assert code == 2
     assert stderr.count("\n") == 1 and message in stderr and "Traceback" not in stderr
+
+
+def test_time_samplers_times_every_point_by_the_protocol(monkeypatch):
+    """The timing pass replaces each point's seconds by the median of its
+    interleaved rounds and leaves the estimates alone; every sampler of a sample
+    count is one case of the same interleaved run."""
+    import mcrt.core.timing as timing
+
+    runs = []
+    real = timing.run_interleaved
+
+    def spy(cases, rounds, **kwargs):
+        runs.append((len(cases), rounds))
+        return real(cases, rounds, **kwargs)
+
+    monkeypatch.setattr(timing, "run_interleaved", spy)
+    convs = [ib.run_convergence(name, ["disk"], counts=(16, 64), timed=False)["disk"]
+             for name in ("independent", "jittered")]
+    before = [p.estimates.copy() for c in convs for p in c.points]
+    for p in (p for c in convs for p in c.points):
+        p.seconds = -1.0
+    ib.time_samplers(convs, rounds=3)
+    assert runs == [(2, 3), (2, 3)]  # per count: both samplers, 3 rounds
+    points = [p for c in convs for p in c.points]
+    assert all(p.seconds > 0 for p in points)
+    for p, old in zip(points, before):
+        np.testing.assert_array_equal(p.estimates, old)

@@ -244,6 +244,7 @@ class ConvergencePoint:
     summary: MSESummary
     seconds: float         # generating the points + evaluating all integrands, warm
     exact: float
+    seed: int = 0          # the seed of this count's points
 
     @property
     def ns_per_sample(self) -> float:
@@ -341,7 +342,35 @@ def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[in
             results[name].points.append(ConvergencePoint(
                 sampler=sampler, integrand=name, n_requested=int(n_req), n=n, trials=trials,
                 estimates=est, summary=mse_summary(est - integrand.exact), seconds=seconds,
-                exact=integrand.exact))
+                exact=integrand.exact, seed=count_seed))
         if progress is not None:
             progress()
     return results
+
+
+def time_samplers(convergences: Iterable[Convergence], rounds: int = 3, seed: int = 0,
+                  **params) -> None:
+    """Time every sampler's points again by the timing protocol
+    (:func:`mcrt.core.timing.run_interleaved`): per sample count, one case per
+    sampler (its points and the integrand, as :func:`run_convergence` made them),
+    a warm-up each, then ``rounds`` rounds in a shuffled order; every point's
+    ``seconds`` becomes the median of its rounds. Interleaving puts a change of
+    machine load on every sampler alike instead of on the one running then."""
+    from ..core.timing import run_interleaved, summarise
+
+    points = [p for conv in convergences for p in conv.points]
+    for n_req in sorted({p.n_requested for p in points}):
+        group = [p for p in points if p.n_requested == n_req]
+
+        def case(point: ConvergencePoint) -> Callable[[], None]:
+            def call() -> None:
+                with quiet_sampler_warnings():
+                    values = point_sets(point.sampler, point.trials, point.n_requested,
+                                        seed=point.seed, **params)
+                    INTEGRANDS[point.integrand].estimates(values)
+            return call
+
+        samples = run_interleaved([case(p) for p in group], rounds, seed=seed + n_req,
+                                  sync=dr.sync_thread)
+        for point, timing in zip(group, samples):
+            point.seconds = summarise(timing).median

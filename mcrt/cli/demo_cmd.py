@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 from ..analysis.metrics import rel_mse
-from ..analysis.study.config import WARMUP_SEED
 from ..core.atomic import atomic_path
-from ..core.render import render_film
+from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler
+from ..core.timing import run_interleaved, summarise
 from ..errors import McrtError
 from ..io import write_contact_sheet, write_exr, write_png
 from ..render.plan import plan_scene
@@ -37,8 +38,10 @@ def add_parser(commands) -> None:
         "demo", help=SUMMARIES["demo"],
         description="Renders each shipped scene with each sampler at the scene's default "
                     "sample count, and a high-spp jittered reference; writes EXR/PNG images, a "
-                    "contact sheet per scene and results.csv with relMSE and time. The times "
-                    "exclude kernel compilation: each sampler first renders once, untimed.",
+                    "contact sheet per scene and results.csv with relMSE and time. Times follow "
+                    "mcrt's timing protocol: each sampler first renders once untimed (kernel "
+                    "compilation), then the samplers render in interleaved rounds, shuffled "
+                    "per round; a time is the median of its rounds.",
         epilog=examples("mcrt demo", "mcrt demo --samplers jittered,sobol -o out/demo_sobol"))
     p.add_argument("-o", "--output", default="out/demo", metavar="DIR",
                    help="output directory (default: out/demo)")
@@ -48,10 +51,14 @@ def add_parser(commands) -> None:
                    help="directory holding the shipped scenes (default: the checkout's scenes/)")
     p.add_argument("--reference-factor", type=positive_int, default=16, metavar="K",
                    help="reference spp = K x the scene's spp (default: 16)")
+    p.add_argument("--rounds", type=positive_int, default=3, metavar="R",
+                   help="timed renders per sampler, interleaved (default: 3)")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import drjit as dr
+
     names = [name.strip() for name in args.samplers.split(",") if name.strip()]
     samplers = [check_sampler_name(name) for name in names]
     if not samplers:
@@ -81,21 +88,34 @@ def run(args: argparse.Namespace) -> int:
         write_exr(out / f"{stem}_reference.exr", {"rgb": reference.image},
                   {"sampler": "jittered", "spp": reference.spp, "role": "reference"})
         sheet = []
-        for name in samplers:
-            # Untimed warm-up: compiles (or loads) the kernels, so the time below is the render's.
-            render_film(scene, make_sampler(name, spp), seed=WARMUP_SEED, progress=False)
-            result = render_film(scene, make_sampler(name, spp), seed=1, progress=not args.quiet)
+        results: dict[str, FilmRender] = {}
+
+        def case(name: str, scene=scene, results=results) -> Callable[[], None]:
+            def render() -> None:  # seed 1 every round: the same image, timed R times
+                results[name] = render_film(scene, make_sampler(name, spp), seed=1,
+                                            progress=False)
+            return render
+
+        # The timing protocol (mcrt.core.timing): an untimed warm-up per sampler, then
+        # interleaved rounds; every round renders the same image.
+        samples = run_interleaved([case(name) for name in samplers], args.rounds,
+                                  sync=dr.sync_thread)
+        for name, timing in zip(samplers, samples):
+            result, summary = results[name], summarise(timing)
             error = rel_mse(result.rgb, reference.rgb)
             stem_out = out / f"{stem}_{name}"
             write_exr(stem_out.with_suffix(".exr"), {"rgb": result.image},
                       {"sampler": name, "spp": result.spp, "seed": 1})
             write_png(stem_out.with_suffix(".png"), result.rgb)
             rows.append({"scene": stem, "sampler": name, "spp": result.spp,
-                         "seconds": round(result.seconds, 4), "rel_mse": f"{error:.4e}"})
-            sheet.append((f"{name} ({result.spp} spp)\nrelMSE {error:.2e}, {result.seconds:.2f} s",
-                          result.rgb))
-            print(f"[{stem}] {name:13s} spp {result.spp:5d}  time {result.seconds:6.2f} s  "
-                  f"relMSE {error:.3e}", flush=True)
+                         "seconds": round(summary.median, 4),
+                         "seconds_spread": round(summary.spread, 4), "rounds": summary.n,
+                         "rel_mse": f"{error:.4e}"})
+            sheet.append((f"{name} ({result.spp} spp)\nrelMSE {error:.2e}, "
+                          f"{summary.median:.2f} s", result.rgb))
+            doubt = f"  ({'; '.join(summary.problems())})" if summary.problems() else ""
+            print(f"[{stem}] {name:13s} spp {result.spp:5d}  time {summary.median:6.2f} s "
+                  f"+- {summary.spread:.2f}  relMSE {error:.3e}{doubt}", flush=True)
         sheet.append((f"reference ({reference.spp} spp)", reference.rgb))
         write_contact_sheet(out / f"{stem}_comparison.png", sheet, columns=3)
 
@@ -103,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    print(f"times exclude kernel compilation (an untimed warm-up render per sampler); wrote "
+    print(f"times: median of {args.rounds} interleaved rounds +- robust spread, after an untimed "
+          f"warm-up render per sampler; wrote "
           f"images, {', '.join(f'{s}_comparison.png' for s in scenes)} and results.csv to {out}")
     return 0

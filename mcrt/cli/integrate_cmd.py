@@ -7,7 +7,13 @@ import csv
 import json
 from pathlib import Path
 
-from ..analysis.integrate import DEFAULT_TRIALS, INTEGRANDS, POINT_BUDGET, run_convergence
+from ..analysis.integrate import (
+    DEFAULT_TRIALS,
+    INTEGRANDS,
+    POINT_BUDGET,
+    run_convergence,
+    time_samplers,
+)
 from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
@@ -114,7 +120,10 @@ def run(args: argparse.Namespace) -> int:
                 bar.set_postfix_str(name)
             results[name] = run_convergence(
                 name, [args.integrand], counts, max_trials=args.trials, budget=args.budget,
-                seed=args.seed, timed=True, progress=bar.update if bar else None)[args.integrand]
+                seed=args.seed, timed=False, progress=bar.update if bar else None)[args.integrand]
+        if bar is not None:
+            bar.set_postfix_str("timing (interleaved rounds)")
+        time_samplers(results.values(), rounds=3, seed=args.seed)
     finally:
         if bar is not None:
             bar.close()
