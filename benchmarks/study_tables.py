@@ -1,10 +1,13 @@
-"""BENCHMARKS.md's study tables from a study's ``results.json``, and issue 13's efficiency check.
+"""BENCHMARKS.md's study tables from a study's ``results.json``, every figure with its 95% interval.
 
 Per scene: one row per sampler with the slopes of log MSE against log spp and
-against log seconds (with their standard errors), the efficiency ``1 / (MSE x
-seconds)`` at every sample count, and the MSE and seconds per render at the
-largest. Then, per cell with spp >= ``--min-spp``, the best of ``--ours`` against
-the best of ``--theirs`` (Mitsuba's built-ins), as a ratio of efficiencies.
+against log seconds, the cost per render split into a fixed part and a part per
+sample, and the MSE and the median time per render at the largest spp; then the
+efficiency of every sampler as a ratio to the study's baseline at every sample
+count; then, per cell with spp >= ``--min-spp``, the best of ``--ours`` against the
+best of ``--theirs`` (Mitsuba's built-ins), as an efficiency ratio with its interval
+(the two MSEs over seeds and the time ratio paired by round, as the study computes
+its ratios: mcrt.analysis.convergence.efficiency_ratio). Biased cells are listed.
 
     mcrt compare configs/full.toml -o out/compare/full
     python benchmarks/study_tables.py out/compare/full/results.json
@@ -14,13 +17,24 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections import defaultdict
 from pathlib import Path
 
 MITSUBA = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
+def _g(v: float | None, spec: str = ".2f") -> str:
+    return format(v, spec) if v is not None and math.isfinite(v) else "-"
+
+
+def _iv(v: float | None, low: float | None, high: float | None, spec: str = ".2f") -> str:
+    return f"{_g(v, spec)} [{_g(low, spec)}, {_g(high, spec)}]" if v is not None else "-"
+
+
 def main() -> None:
+    from mcrt.analysis.convergence import efficiency_ratio, excess_mse, paired_time_ratio
+
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("results", type=Path)
     p.add_argument("--ours", default="sobol,zsobol")
@@ -28,6 +42,7 @@ def main() -> None:
     p.add_argument("--min-spp", type=int, default=16)
     args = p.parse_args()
     data = json.loads(args.results.read_text())
+    baseline = data["study"]["baseline"]
     cells: dict[str, dict[str, dict[int, dict]]] = defaultdict(lambda: defaultdict(dict))
     for c in data["cells"]:
         cells[c["scene"]][c["sampler"]][c["spp_requested"]] = c
@@ -35,33 +50,51 @@ def main() -> None:
     ours, theirs = args.ours.split(","), args.theirs.split(",")
     for scene, samplers in cells.items():
         counts = sorted(next(iter(samplers.values())))
+        top = counts[-1]
         print(f"\n{scene}:\n")
-        print("| sampler | slope vs spp | slope vs time | "
-              + " | ".join(f"efficiency @{n}" for n in counts)
-              + f" | MSE @{counts[-1]} | s/render @{counts[-1]} |")
-        print("|---|---|---|" + "---|" * len(counts) + "---|---|")
+        print(f"| sampler | slope vs spp [95%] | slope vs time [95%] | fixed ms | ns/sample "
+              f"| MSE @{top} | ms/render @{top} [95%] |")
+        print("|---|---|---|---:|---:|---:|---|")
         for name, by_spp in samplers.items():
-            f = fits[(scene, name)]
-            last = by_spp[counts[-1]]
-            spp_note = f" ({last['spp']})" if last["spp"] != counts[-1] else ""
-            print(f"| `{name}` | {f['slope_spp']:.2f} +- {f['slope_spp_se']:.2f} "
-                  f"| {f['slope_seconds']:.2f} +- {f['slope_seconds_se']:.2f} | "
-                  + " | ".join(f"{by_spp[n]['efficiency']:.1e}" for n in counts)
-                  + f" | {last['mse']:.2e}{spp_note} | {last['seconds']:.3f} +- "
-                  f"{last['seconds_sd']:.3f} |")
-        print(f"\n| spp | best of {', '.join(ours)} | efficiency | best of Mitsuba's "
-              f"| efficiency | ratio |")
-        print("|---:|---|---:|---|---:|---:|")
+            f, last = fits[(scene, name)], by_spp[top]
+            spp_note = f" ({last['spp']})" if last["spp"] != top else ""
+            print(f"| `{name}` | {_iv(f['slope_spp'], f['slope_spp_low'], f['slope_spp_high'])} "
+                  f"| {_iv(f['slope_seconds'], f['slope_seconds_low'], f['slope_seconds_high'])} "
+                  f"| {_g(1e3 * f['fixed_seconds'] if f['fixed_seconds'] else None, '.1f')} "
+                  f"| {_g(1e9 * f['seconds_per_sample'] if f['seconds_per_sample'] else None, '.0f')} "  # noqa: E501
+                  f"| {last['mse']:.2e}{spp_note} "
+                  f"| {_iv(1e3 * last['seconds'], 1e3 * last['seconds_low'], 1e3 * last['seconds_high'], '.0f')} |")  # noqa: E501
+        print(f"\nEfficiency as a ratio to `{baseline}`'s at the same spp [95%]:\n")
+        print("| sampler | " + " | ".join(f"@{n}" for n in counts) + " |")
+        print("|---|" + "---|" * len(counts))
+        for name, by_spp in samplers.items():
+            print(f"| `{name}` | " + " | ".join(
+                _iv(by_spp[n]["efficiency_ratio"], by_spp[n]["efficiency_ratio_low"],
+                    by_spp[n]["efficiency_ratio_high"]) for n in counts) + " |")
+        biased = [f"`{c['sampler']}` @{c['spp']} ({c['bias']:+.1e}, {abs(c['bias_z']):.1f} sigma)"
+                  for by_spp in samplers.values() for c in by_spp.values() if c["biased"]]
+        print(f"\nBiased cells (Holm, 5% family-wise): {', '.join(biased) or 'none'}")
+        mine_names = [s for s in ours if s in samplers]
+        other_names = [s for s in theirs if s in samplers]
+        if not (mine_names and other_names):
+            continue
+        print(f"\n| spp | best of {', '.join(ours)} | best of Mitsuba's | efficiency ratio [95%] |")
+        print("|---:|---|---|---|")
         for n in counts:
             if n < args.min_spp:
                 continue
-            def efficiency(name: str, n: int = n) -> float:
-                return samplers[name][n]["efficiency"]
 
-            mine = max((s for s in ours if s in samplers), key=efficiency)
-            other = max((s for s in theirs if s in samplers), key=efficiency)
-            a, b = samplers[mine][n]["efficiency"], samplers[other][n]["efficiency"]
-            print(f"| {n} | `{mine}` | {a:.2e} | `{other}` | {b:.2e} | {a / b:.2f} |")
+            def efficiency(name: str, n: int = n) -> float:
+                return samplers[name][n]["efficiency"] or 0.0
+
+            mine, other = max(mine_names, key=efficiency), max(other_names, key=efficiency)
+            a, b = samplers[mine][n], samplers[other][n]
+            ratio = efficiency_ratio(
+                excess_mse([r["mse"] for r in a["per_seed"]], a["mse_floor"]),
+                excess_mse([r["mse"] for r in b["per_seed"]], b["mse_floor"]),
+                paired_time_ratio(a["times"], b["times"]))
+            low, high = ratio.interval()
+            print(f"| {n} | `{mine}` | `{other}` | {_iv(ratio.value, low, high)} |")
 
 
 if __name__ == "__main__":

@@ -12,8 +12,9 @@
 * ``exr/<scene>/*.exr`` - the reference and, per cell, the mean over seeds
   (with its per-pixel variance) and the first seed's render
   (:mod:`mcrt.analysis.viewer.files`), linked from the viewer;
-* ``summary.png`` - the main figure: MSE against render time per scene, over
-  the error maps of every sampler on the first scene;
+* ``summary.png`` - the main figure: excess MSE against spp per scene (the
+  headline; time is the noisy axis), over the error maps of every sampler on
+  the first scene;
 * ``error_vs_spp.png`` and ``error_vs_time.png`` - log-log excess MSE against
   samples per pixel and against seconds, one panel per scene, one line per
   sampler with its fitted slope (the cost curve of accuracy);
@@ -381,11 +382,14 @@ def _html_convergence(result: StudyResult, files: dict[str, Path]) -> list[str]:
              f"<b>{html.escape(result.config.baseline)}</b> at the same spp, with its 95% "
              "interval (<i>n.s.</i>: the interval contains 1, no significant difference), "
              "and its cost per render split into a fixed part and a part per sample (a "
-             "least-squares line over every timed render). In the plots each point "
-             "is labelled with its sample count; a cross marks an <i>unresolved</i> cell: "
-             f"its MSE is below {RESOLVED_FACTOR:g}&times; the reference's own noise floor "
-             "(dotted line), so the reference cannot tell its error apart from zero; it "
-             "is drawn at max(excess MSE, floor) and left out of the fits.</p>"]
+             "least-squares line over every timed render). In the plots the vertical bars "
+             "are &plusmn;1 standard error of the mean MSE over seeds and the horizontal "
+             "bars the 95% interval of the median render time; on the time plot grey "
+             "labels give the sample count, a hollow marker a cell whose timing was "
+             "disturbed and a red ring a significant bias; a cross marks an "
+             f"<i>unresolved</i> cell: its MSE is below {RESOLVED_FACTOR:g}&times; the "
+             "reference's own noise floor (dotted line), so the reference cannot tell its "
+             "error apart from zero; it is left out of the fits.</p>"]
     for scene in result.scenes:
         parts.append(f"<h3>{html.escape(scene)}</h3>")
         parts.append(_table(summary_header(result), summary_rows(result, scene)))
