@@ -191,3 +191,25 @@ def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(c
         assert abs(s.ratio - 1.0) < 0.2 and abs(s.ratio_z) < Z_THRESHOLD, (name, s)
         assert s.peak_z < Z_THRESHOLD, (name, s)
         assert grid.ratio_z > s.ratio_z + Z_THRESHOLD
+
+
+def test_scores_do_not_depend_on_the_blas_thread_count():
+    """The band sums are numpy reductions, not BLAS products (whose rounding
+    follows the thread count): a 320x240 score is the same to the last bit with
+    1 and 2 OpenBLAS threads, as on a cluster worker and in the client."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from mcrt.analysis.aliasing import aliasing_score\n"
+            "rng = np.random.default_rng(3)\n"
+            "e = rng.normal(size=(240, 320)) + np.sin(np.arange(320) / 3.0)[None, :]\n"
+            "print(repr(aliasing_score(e, null_draws=32, seed=1).as_dict()))\n")
+    outs = []
+    for threads in ("1", "2"):
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                              text=True, check=True)
+        outs.append(done.stdout)
+    assert outs[0] == outs[1] and "ratio" in outs[0]

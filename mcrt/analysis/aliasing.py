@@ -227,8 +227,11 @@ def _statistics(power: np.ndarray, layout: _Layout) -> tuple[np.ndarray, np.ndar
     """(ratio, peak) of one or a stack of half power spectra ``(..., H, W//2+1)``."""
     lead = power.shape[:-2]
     flat = power.reshape(-1, power.shape[-2] * power.shape[-1])
-    total = flat @ layout.keep_weight.ravel()
-    low = flat @ layout.low_weight.ravel()
+    # Row sums by numpy's own (pairwise, single-threaded) reduction, not a BLAS
+    # matrix-vector product: BLAS splits the sum by its thread count, so the last
+    # bits would depend on the machine (a study on a cluster would differ).
+    total = (flat * layout.keep_weight.ravel()).sum(axis=1)
+    low = (flat * layout.low_weight.ravel()).sum(axis=1)
     safe = np.where(total > 0, total, 1.0)
     ratio = np.where(total > 0, low / safe / layout.share, 1.0)
     # Whiten by the ring median (over the stored half spectrum): any isotropic
