@@ -55,6 +55,26 @@ def _same_stats(a, b) -> None:
                                       err_msg=name)
 
 
+def test_the_local_dashboard_listens_on_this_machine_only(cluster):
+    """A local cluster's dashboard (worker addresses, task names) is bound to the
+    loopback interface, not to every interface: every listening socket of its
+    port in /proc/net/tcp{,6} has the local address 127.0.0.1."""
+    from urllib.parse import urlparse
+
+    link = urlparse(cluster.client.dashboard_link)
+    assert link.hostname == "127.0.0.1"
+    port = f"{link.port:04X}"
+    bound = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                local, state = line.split()[1], line.split()[3]
+                address, _, p = local.partition(":")
+                if p == port and state == "0A":  # LISTEN
+                    bound.append(address)
+    assert bound and all(a == "0100007F" for a in bound), bound
+
+
 def test_reference_on_a_cluster_is_bit_identical(cluster):
     """8 passes on two worker processes, folded in pass order: the same float64
     moments as the passes run one after the other here."""

@@ -96,7 +96,8 @@ class DaskExecutor:
             if workers < 1:
                 raise McrtError(f"--cluster {address}: a local cluster needs at least 1 worker")
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=logging.ERROR)
+                                   dashboard_address="127.0.0.1:0",  # this machine only
+                                   silence_logs=logging.ERROR)
             client = Client(cluster)
             client.register_plugin(WorkerSetup(variant, max(1, cores // workers)))
             log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,
