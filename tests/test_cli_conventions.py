@@ -254,3 +254,32 @@ def test_a_checkpoint_of_another_render_is_kept_and_named(tmp_path, caplog):
     assert here.read_bytes() == before and not cache.exists()
     found = CheckpointStore([here, cache], "key-a").load()  # the old render still resumes
     assert found is not None and found.meta["done"] == 2
+
+
+def test_recorded_command_lines_keep_every_setting_that_changes_pixels():
+    """The resume command of a study names its variant (the saved state's key
+    holds it), and a render's recorded command line its variant, sampler
+    parameters, multisampling and adaptive settings: run as printed, each
+    reproduces its job instead of starting another."""
+    import argparse
+    import shlex
+    from pathlib import Path
+
+    import mitsuba as mi
+
+    from mcrt.cli.compare_cmd import resume_command
+    from mcrt.cli.render_cmd import _job
+
+    line = resume_command(argparse.Namespace(config="s.toml", quiet=True, variant=mi.variant()),
+                          Path("out"))
+    assert shlex.split(line) == ["mcrt", "-q", "--variant", mi.variant(), "compare", "s.toml",
+                                 "-o", "out"]
+    args = argparse.Namespace(scene="s.xml", seed=3, defines=["res=32"], effect=None,
+                              sampler_params=["jitter=0.5"], multisample=True, adaptive=True,
+                              adaptive_threshold=0.02)
+    words = shlex.split(_job(args, "jittered", 64, Path("o/img")))
+    assert words[:3] == ["mcrt", "--variant", mi.variant()]
+    for pair in (["-P", "jitter=0.5"], ["-D", "res=32"], ["--seed", "3"], ["--spp", "64"]):
+        assert any(words[i:i + 2] == pair for i in range(len(words))), pair
+    assert "--multisample" in words and "--adaptive" in words
+    assert any(words[i] == "--threshold" and words[i + 1] == "0.02" for i in range(len(words)))

@@ -63,9 +63,15 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def resume_command(args: argparse.Namespace, out: Path) -> str:
-    """The command line that resumes this study."""
+    """The command line that resumes this study: with its variant (whose key the
+    saved state carries; without it the state would belong to another study)."""
+    import mitsuba as mi
+
     quiet = ["-q"] if getattr(args, "quiet", False) else []
-    return shlex.join(["mcrt", *quiet, "compare", str(args.config), "-o", str(out)])
+    variant = mi.variant() or "llvm_ad_rgb"
+    given = ["--variant", variant] if getattr(args, "variant", None) or \
+        variant != "llvm_ad_rgb" else []
+    return shlex.join(["mcrt", *quiet, *given, "compare", str(args.config), "-o", str(out)])
 
 
 def run(args: argparse.Namespace) -> int:

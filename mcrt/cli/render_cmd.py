@@ -233,12 +233,25 @@ def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) ->
 
 
 def _job(args: argparse.Namespace, sampler: str, spp: int, stem: Path) -> str:
-    """The render in words, as a command line (recorded with its checkpoints)."""
-    words = ["mcrt", "render", str(args.scene), "--sampler", sampler, "--spp", str(spp),
-             "--seed", str(args.seed)]
+    """The render in words, as a command line (recorded with its checkpoints): every
+    option that changes its pixels (the variant, sampler parameters, multisampling,
+    adaptive settings), so that running it reproduces the render."""
+    import mitsuba as mi
+
+    from ._adaptive_args import cli_parameters
+
+    words = ["mcrt", "--variant", mi.variant() or "llvm_ad_rgb", "render", str(args.scene),
+             "--sampler", sampler, "--spp", str(spp), "--seed", str(args.seed)]
+    words += [w for p in getattr(args, "sampler_params", None) or [] for w in ("-P", p)]
     words += [w for d in args.defines or [] for w in ("-D", d)]
     words += [w for e in args.effect or [] for w in ("--effect", e)]
-    words += ["--adaptive"] if getattr(args, "adaptive", False) else []
+    words += ["--multisample"] if getattr(args, "multisample", False) else []
+    if getattr(args, "adaptive", False):
+        words.append("--adaptive")
+        for p in cli_parameters():
+            value = getattr(args, f"adaptive_{p.name}", None)
+            if value is not None and p.flag != "--spp":
+                words += [p.flag, str(value)]
     return shlex.join([*words, "-o", str(stem)])
 
 
