@@ -24,7 +24,8 @@ benchmarks) times the same way, after pyperf and hyperfine:
    asymptotic efficiency; the plain sd keeps it honest when there are
    outliers); and a stability verdict: *unstable* when the relative spread
    exceeds :data:`SPREAD_LIMIT`, *loaded* when other processes were runnable at
-   the start of more than :data:`LOADED_SHARE` of the runs.
+   the start of more than :data:`LOADED_SHARE` of the runs, and doubtful too
+   when more than a quarter of the runs are outliers (the median absorbs a few).
 5. **Fixed and per-unit cost apart** (:func:`fit_cost`): ``t = fixed + per_unit
    x units`` by least squares over all timed runs of a case at several sizes
    (e.g. units = samples), with standard errors.
@@ -160,17 +161,22 @@ class TimingSummary:
         return self.n > 0 and self.loaded > LOADED_SHARE * self.n
 
     @property
+    def has_outliers(self) -> bool:
+        """More than a quarter of the runs are outliers (the median absorbs fewer)."""
+        return 4 * self.outliers > self.n
+
+    @property
     def stable(self) -> bool:
-        """Neither unstable nor loaded."""
-        return not (self.unstable or self.is_loaded)
+        """Neither unstable, nor loaded, nor with many outliers."""
+        return not (self.unstable or self.is_loaded or self.has_outliers)
 
     def problems(self) -> list[str]:
         """What makes this case's timing doubtful, in words (empty: nothing)."""
         out = []
         if self.unstable:
             out.append(f"spread {100 * self.relative_spread:.0f}% of the median")
-        if self.outliers:
-            out.append(f"{self.outliers} outlier{'s' if self.outliers > 1 else ''}")
+        if self.has_outliers:
+            out.append(f"{self.outliers} outliers of {self.n} runs")
         if self.is_loaded:
             out.append(f"other processes running at {self.loaded} of {self.n} runs")
         return out

@@ -94,8 +94,9 @@ CELL_FIELDS: tuple[Field, ...] = (
     Field("time_others", "other runnable processes when each timed render started "
                          "(procs_running of /proc/stat; empty where unknown)"),
     Field("time_problems", "what makes the cell's timing doubtful: a spread over 10% of the "
-                           "median, outliers (> 3.5 robust sd), other processes running at "
-                           "over a quarter of its renders; empty: none",
+                           "median, outliers (> 3.5 robust sd) in over a quarter of its "
+                           "renders, other processes running at over a quarter of them; "
+                           "empty: none",
           column=Column("timing", "text")),
     Field("mse", "mean over pixels and channels of (render - reference)^2, averaged over seeds",
           column=Column("MSE", "sd")),
