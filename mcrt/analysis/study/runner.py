@@ -170,6 +170,7 @@ def run_study(config: StudyConfig, progress: bool = False,
                         "run it without --retime first")
     bar = Progress(config.renders, progress, unit="render", desc="study", leave=True)
     run = _Run(config, state, bar)
+    _warn_if_busy(run.env["machine"])
     run.executor = executor
     run.retiming = retime
     try:
@@ -180,6 +181,17 @@ def run_study(config: StudyConfig, progress: bool = False,
     finally:
         run.bar.close()
     return run.result()
+
+
+def _warn_if_busy(facts: dict[str, Any]) -> None:
+    """pyperf's "the system load is high" before a study times anything."""
+    load, cpus = facts.get("loadavg") or [0.0], facts.get("cpus_usable") or 1
+    others = facts.get("others_running") or 0
+    if others >= 1 or load[0] > 0.5 * cpus:
+        log.warning("the system load is high (load average %.2f on %d CPUs, %d other "
+                    "processes running): times will be noisy; ratios pair renders of one "
+                    "round, and the report names the cells whose timing was disturbed",
+                    load[0], cpus, others)
 
 
 # --------------------------------------------------------------------------- the steps
