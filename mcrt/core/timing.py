@@ -15,11 +15,13 @@ benchmarks) times the same way, after pyperf and hyperfine:
    within a round (*paired*) cancels slow drifts.
 3. **Both clocks.** Each timed run records wall time (``perf_counter``) and the
    process's CPU time (``process_time``: every thread of the process, so
-   Dr.Jit's worker threads too), and how many other processes were runnable
-   when it started (``procs_running`` of ``/proc/stat``; None elsewhere).
+   Dr.Jit's worker threads too), and how many threads of other processes were
+   runnable at its start and at its end, the smaller of the two
+   (``procs_running`` of ``/proc/stat`` less this process's runnable threads;
+   None elsewhere).
 4. **Robust summary** (:class:`TimingSummary`): the median; 1.4826 x the
    median absolute deviation as the spread; outliers (more than
-   :data:`OUTLIER_Z` robust sd from the median); the standard error of the log
+   :data:`OUTLIER_Z` robust sd and :data:`OUTLIER_MIN` of the median from it); the standard error of the log
    of the median, ``sqrt(pi / 2) x sd(log t) / sqrt(n)`` (the median's
    asymptotic efficiency; the plain sd keeps it honest when there are
    outliers); and a stability verdict: *unstable* when the relative spread
@@ -49,8 +51,11 @@ T = TypeVar("T")
 
 #: A case whose robust relative spread (1.4826 MAD / median) exceeds this is unstable.
 SPREAD_LIMIT = 0.10
-#: A timed run more than this many robust sd from the median is an outlier.
+#: A timed run more than this many robust sd from the median is an outlier...
 OUTLIER_Z = 3.5
+#: ... and more than this fraction of the median away from it (closer is immaterial,
+#: however tight the other runs are).
+OUTLIER_MIN = 0.05
 #: A case is loaded when other processes were runnable at more than this share of its runs.
 LOADED_SHARE = 0.25
 #: The median's standard error relative to the mean's under normality, sqrt(pi / 2).
@@ -104,12 +109,17 @@ def others_running() -> int | None:
 def timed(fn: Callable[[], T], sync: Callable[[], None] | None = None) -> tuple[T, Sample]:
     """Run ``fn()`` once and time it; ``sync`` (e.g. ``dr.sync_thread``) is called
     before the clocks stop so that queued device work is counted."""
-    others = others_running()
+    before = others_running()
     wall0, cpu0 = time.perf_counter(), time.process_time()
     out = fn()
     if sync is not None:
         sync()
-    return out, Sample(time.perf_counter() - wall0, time.process_time() - cpu0, others)
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    after = others_running()
+    # A process that competed for the run is runnable at both ends; a thread that is
+    # runnable for an instant (a kernel worker, ours spinning down) rarely is.
+    others = None if before is None or after is None else min(before, after)
+    return out, Sample(wall, cpu, others)
 
 
 def round_orders(cases: int, rounds: int, seed: int = 0) -> list[list[int]]:
@@ -198,8 +208,9 @@ def summarise(samples: Sequence[Sample]) -> TimingSummary:
     spread = float(1.4826 * np.median(np.abs(wall - median))) if n > 1 else math.nan
     logs = np.log(wall)
     se_log = float(MEDIAN_SE_FACTOR * logs.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
-    outliers = int(np.count_nonzero(np.abs(wall - median) > OUTLIER_Z * spread)) \
-        if n > 2 and spread > 0 else 0
+    outliers = int(np.count_nonzero(np.abs(wall - median)
+                                    > max(OUTLIER_Z * spread, OUTLIER_MIN * median))) \
+        if n > 2 else 0
     cpu = float(np.median([s.cpu for s in samples]))
     loaded = sum(1 for s in samples if s.others)
     unstable = bool(n > 1 and spread / median > SPREAD_LIMIT)
@@ -274,6 +285,6 @@ def machine() -> dict[str, Any]:
             "others_running": others_running()}
 
 
-__all__ = ["LOADED_SHARE", "OUTLIER_Z", "SPREAD_LIMIT", "CostFit", "Sample", "TimingSummary",
+__all__ = ["LOADED_SHARE", "OUTLIER_MIN", "OUTLIER_Z", "SPREAD_LIMIT", "CostFit", "Sample", "TimingSummary",
            "fit_cost", "machine", "others_running", "round_orders", "run_interleaved",
            "summarise", "timed"]
