@@ -12,6 +12,8 @@ moved between the runs, and the quiet run's interval half-widths (the goal: with
 
     python benchmarks/timing_stability.py                 # ~3 min on 2 cores
     python benchmarks/timing_stability.py --busy 0        # both runs quiet (noise floor)
+    python benchmarks/timing_stability.py --scene scenes/checkerboard.xml \
+        --params "{ width = 320, height = 240 }"        # direct light: MSE tight over seeds
 
 The reference is shared through a private cache (rendered once, by the first run).
 """
@@ -42,7 +44,7 @@ baseline = "{baseline}"
 spp = {ref_spp}
 [[scenes]]
 path = "{scene}"
-params = {{ res = {res} }}
+params = {params}
 """
 
 
@@ -77,7 +79,8 @@ def run(config: Path, out: Path, env: dict[str, str], busy: int, busy_start: flo
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", default=str(ROOT / "scenes" / "cornell_box.xml"))
-    p.add_argument("--res", type=int, default=64)
+    p.add_argument("--params", default="{ res = 64 }",
+                   help="the scene's parameters, a TOML inline table (default: %(default)s)")
     p.add_argument("--samplers", default="independent,jittered,sobol,multijitter")
     p.add_argument("--baseline", default="independent")
     p.add_argument("--spp", default="4,16,64,256")
@@ -95,7 +98,7 @@ def main() -> None:
         config.write_text(CONFIG.format(
             spp=spp, seeds=args.seeds, rounds=args.rounds, baseline=args.baseline,
             samplers=json.dumps(args.samplers.split(",")), ref_spp=16 * max(spp),
-            scene=args.scene, res=args.res))
+            scene=Path(args.scene).resolve(), params=args.params))
         env = {**os.environ, "MCRT_CACHE_DIR": str(root / "cache")}
         # Untimed first run: the reference and the kernel cache, so both timed runs are warm.
         run(config, root / "warm", env, 0, 0, 0)
@@ -112,7 +115,7 @@ def _cells(data: dict) -> dict[tuple[str, int], dict]:
 def report(args: argparse.Namespace, quiet: dict, loaded: dict, quiet_s: float,
            loaded_s: float) -> None:
     a, b = _cells(quiet), _cells(loaded)
-    print(f"study: {args.samplers} on {Path(args.scene).name} at {args.res}^2, spp "
+    print(f"study: {args.samplers} on {Path(args.scene).name} {args.params}, spp "
           f"{args.spp}, {args.seeds} seeds, {args.rounds} rounds; quiet run {quiet_s:.0f} s, "
           f"loaded run {loaded_s:.0f} s ({args.busy} busy processes for the middle half)")
     disturbed = loaded["time_protocol"]["disturbed"]

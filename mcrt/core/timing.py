@@ -92,18 +92,32 @@ def _own_running() -> int:
     return max(count, 1)
 
 
-def others_running() -> int | None:
-    """Threads of other processes runnable right now: ``procs_running`` of
-    ``/proc/stat`` (every runnable thread of the machine) less this process's
-    runnable threads; None where the kernel does not say (not Linux)."""
+def _others_once() -> int | None:
+    own = _own_running()
     try:
         with open("/proc/stat", "rb") as f:
             for line in f:
                 if line.startswith(b"procs_running"):
-                    return max(0, int(line.split()[1]) - _own_running())
+                    total = int(line.split()[1])
+                    return max(0, total - max(own, _own_running()))
     except (OSError, ValueError, IndexError):
         pass
     return None
+
+
+def others_running() -> int | None:
+    """Threads of other processes runnable now: ``procs_running`` of
+    ``/proc/stat`` (every runnable thread of the machine) less this process's
+    runnable threads, the smaller of two reads half a millisecond apart (Dr.Jit's
+    workers spin for a moment after a kernel, and a single read catches them
+    or a passing kernel thread; a competing process is runnable in both); None
+    where the kernel does not say (not Linux)."""
+    first = _others_once()
+    if not first:
+        return first
+    time.sleep(0.0005)
+    second = _others_once()
+    return first if second is None else min(first, second)
 
 
 def timed(fn: Callable[[], T], sync: Callable[[], None] | None = None) -> tuple[T, Sample]:
