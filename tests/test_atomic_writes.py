@@ -51,7 +51,7 @@ def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResu
         renders = [ref + rng.normal(0.0, 0.1 / np.sqrt(spp), ref.shape) for _ in config.seeds]
         per_seed = [{"seed": s, "spp": spp, "seconds": 1e-3 * spp * (1 + 0.1 * s),
                      "mse": float(np.mean((r - ref) ** 2)), "rel_mse": 0.1, "delta_e": 1.0,
-                     "nonfinite": 0,
+                     "mean_error": float(np.mean(r - ref)), "nonfinite": 0,
                      "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
                     for s, r in zip(config.seeds, renders)]
         stats = PixelStats.from_images(renders)

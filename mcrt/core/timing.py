@@ -21,9 +21,9 @@ benchmarks) times the same way, after pyperf and hyperfine:
    None elsewhere).
 4. **Robust summary** (:class:`TimingSummary`): the median; 1.4826 x the
    median absolute deviation as the spread; outliers (more than
-   :data:`OUTLIER_Z` robust sd and :data:`OUTLIER_MIN` of the median from it); the standard error of the log
-   of the median, ``sqrt(pi / 2) x sd(log t) / sqrt(n)`` (the median's
-   asymptotic efficiency; the plain sd keeps it honest when there are
+   :data:`OUTLIER_Z` robust sd and :data:`OUTLIER_MIN` of the median from it);
+   the standard error of the log of the median, ``sqrt(pi / 2) x sd(log t) /
+   sqrt(n)`` (the median's asymptotic efficiency; the plain sd keeps it honest when there are
    outliers); and a stability verdict: *unstable* when the relative spread
    exceeds :data:`SPREAD_LIMIT`, *loaded* when other processes were runnable at
    the start of more than :data:`LOADED_SHARE` of the runs, and doubtful too
@@ -299,6 +299,6 @@ def machine() -> dict[str, Any]:
             "others_running": others_running()}
 
 
-__all__ = ["LOADED_SHARE", "OUTLIER_MIN", "OUTLIER_Z", "SPREAD_LIMIT", "CostFit", "Sample", "TimingSummary",
-           "fit_cost", "machine", "others_running", "round_orders", "run_interleaved",
-           "summarise", "timed"]
+__all__ = ["LOADED_SHARE", "OUTLIER_MIN", "OUTLIER_Z", "SPREAD_LIMIT", "CostFit", "Sample",
+           "TimingSummary", "fit_cost", "machine", "others_running", "round_orders",
+           "run_interleaved", "summarise", "timed"]

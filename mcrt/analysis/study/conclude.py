@@ -35,7 +35,7 @@ def conclude(cells: list[dict[str, Any]], fits: list[dict[str, Any]], baseline: 
              pixels: dict[str, int]) -> list[dict[str, Any]]:
     """The cells with their study-wide fields filled (new records, same order);
     ``pixels``: each scene's film pixels (for the per-sample efficiency)."""
-    flags = holm([two_sided_p(c["bias_z"]) for c in cells], BIAS_ALPHA)
+    flags = holm([two_sided_p(c["bias_z"], c["bias_df"]) for c in cells], BIAS_ALPHA)
     base = {(c["scene"], c["spp_requested"]): c for c in cells if c["sampler"] == baseline}
     cost = {(f["scene"], f["sampler"]): f["seconds_per_sample"] for f in fits}
     out = []
@@ -109,14 +109,14 @@ def interval_text(value: float, low: float, high: float, spec: str = ".3g") -> s
 
 def bias_lines(cells: list[dict[str, Any]]) -> list[str]:
     """One line per (scene, sampler) with biased cells: where, how much, how sure."""
-    measured = sum(1 for c in cells if math.isfinite(two_sided_p(c["bias_z"])))
+    measured = sum(1 for c in cells if math.isfinite(two_sided_p(c["bias_z"], c["bias_df"])))
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for c in cells:
         if c["biased"]:
             groups.setdefault((c["scene"], c["sampler"]), []).append(c)
     lines = []
     for (scene, sampler), found in groups.items():
-        parts = ", ".join(f"{c['spp']} spp: {c['bias']:+.2e} ({abs(c['bias_z']):.1f} sigma)"
+        parts = ", ".join(f"{c['spp']} spp: {c['bias']:+.2e} (t = {c['bias_z']:+.1f})"
                           for c in found)
         lines.append(f"{sampler} is biased on {scene} at {parts}; Holm-corrected over "
                      f"{measured} cells at {BIAS_ALPHA:g}")

@@ -137,15 +137,19 @@ CELL_FIELDS: tuple[Field, ...] = (
     Field("variance", "mean over pixels and channels of the per-pixel variance of the pixel "
                       "estimate across seeds (Welford, float64; 0 for a deterministic sampler)",
           column=Column("variance")),
-    Field("bias", "mean of (seed-averaged render - reference) with a 95% normal interval, "
-                  "sd = sqrt(sum(var_seeds / K + se_ref^2)) / M",
+    Field("bias", "mean of (seed-averaged render - reference) over pixels and channels, with "
+                  "a 95% Student-t interval: the seeds' image means are the replications "
+                  "(K - 1 degrees of freedom), the reference's noise added (its per-pixel "
+                  "standard errors, the film filter's pixel correlation, channels as one)",
           column=Column("bias [95%]", "interval")),
     Field("bias_low"),
     Field("bias_high"),
-    Field("bias_z", "bias / its standard error"),
-    Field("biased", "the bias is significant: its two-sided p-value (normal, from bias_z) is "
-                    "rejected by Holm's step-down correction at 0.05 over every measured cell "
-                    "of the study"),
+    Field("bias_z", "bias / its standard error (a t statistic on bias_df degrees of freedom)"),
+    Field("bias_df", "the degrees of freedom of that standard error: K - 1, the seeds' (the "
+                     "reference's term, estimated from its pixels, is credited with none)"),
+    Field("biased", "the bias is significant: its two-sided p-value (Student t from bias_z and "
+                    "bias_df) is rejected by Holm's step-down correction at 0.05 over every "
+                    "measured cell of the study"),
     Field("delta_e", "mean CIEDE2000 of the displayed images (linear sRGB clipped to [0, 1], "
                      "D65, Y_white = 1)",
           column=Column("\u0394E00")),
