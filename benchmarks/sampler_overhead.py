@@ -2,12 +2,14 @@
 
 Renders the Cornell box (256x256, path tracer, 64 spp) with each mcrt plugin
 and with its Mitsuba equivalent, through ``mi.render`` (so Mitsuba drives the
-sampler exactly as in any user scene). Runs are interleaved (ours, theirs,
-ours, ...) after a warm-up that compiles and caches every kernel, each timed
-with ``dr.sync_thread()`` around it; the script prints per-pair medians, the
-median of the per-round wall-time ratios (ours / Mitsuba's) with their
-interquartile range, and the median of the per-round CPU-time ratios (process
-CPU time of all threads: less disturbed by other jobs on a shared machine).
+sampler exactly as in any user scene). Timed by mcrt's protocol
+(:func:`mcrt.core.timing.run_interleaved`: a warm-up that compiles and caches
+every kernel, then rounds in a shuffled order, each render between
+``dr.sync_thread()`` barriers); the script prints per-pair medians, the median
+of the per-round wall-time ratios (ours / Mitsuba's) with their interquartile
+range and 95% interval (:func:`mcrt.analysis.convergence.paired_time_ratio`),
+and the median of the per-round CPU-time ratios (process CPU time of all
+threads: less disturbed by other jobs on a shared machine).
 
     python benchmarks/sampler_overhead.py [--rounds 15] [--size 256] [--spp 64]
 """
@@ -15,13 +17,16 @@ CPU time of all threads: less disturbed by other jobs on a shared machine).
 from __future__ import annotations
 
 import argparse
+import itertools
 import statistics
-import time
+from collections.abc import Callable, Iterator
 
 import drjit as dr
 import mitsuba as mi
 
 import mcrt  # noqa: F401  (registers the plugins)
+from mcrt.analysis.convergence import paired_time_ratio
+from mcrt.core.timing import run_interleaved
 
 #: (ours, Mitsuba's equivalent)
 PAIRS = (
@@ -44,14 +49,11 @@ def cornell(sampler: dict, size: int, spp: int) -> mi.Scene:
     return mi.load_dict(scene)
 
 
-def timed_render(scene: mi.Scene, spp: int, seed: int) -> tuple[float, float]:
-    """(wall seconds, process CPU seconds over all threads) of one render."""
-    dr.sync_thread()
-    start, cpu = time.perf_counter(), time.process_time()
-    image = mi.render(scene, spp=spp, seed=seed)
-    dr.eval(image)
-    dr.sync_thread()
-    return time.perf_counter() - start, time.process_time() - cpu
+def renderer(scene: mi.Scene, spp: int, seeds: Iterator[int]) -> Callable[[], None]:
+    """One render of ``scene`` with the next seed (the protocol times the call)."""
+    def render() -> None:
+        dr.eval(mi.render(scene, spp=spp, seed=next(seeds)))
+    return render
 
 
 def label(sampler: dict) -> str:
@@ -70,23 +72,21 @@ def main() -> None:
           f"{args.rounds} interleaved rounds after warm-up, Dr.Jit threads: "
           f"{dr.thread_count()}")
     print(f"{'ours':24s} {'mitsuba':32s} {'ours [s]':>9s} {'theirs [s]':>10s} {'ratio':>7s} "
-          f"{'IQR':>13s} {'CPU ratio':>9s}")
+          f"{'IQR':>13s} {'95% interval':>13s} {'CPU ratio':>9s}")
     for ours, theirs in PAIRS:
         scenes = (cornell(ours, args.size, args.spp), cornell(theirs, args.size, args.spp))
-        for scene in scenes:  # warm-up: compile and cache kernels
-            timed_render(scene, args.spp, seed=0)
-        times: tuple[list[tuple[float, float]], ...] = ([], [])
-        for r in range(args.rounds):
-            order = (0, 1) if r % 2 == 0 else (1, 0)  # alternate who goes first
-            for i in order:
-                times[i].append(timed_render(scenes[i], args.spp, seed=r + 1))
-        wall = [a[0] / b[0] for a, b in zip(*times)]
-        cpu = [a[1] / b[1] for a, b in zip(*times)]
+        seeds = itertools.count(1)
+        samples = run_interleaved([renderer(scene, args.spp, seeds) for scene in scenes],
+                                  args.rounds, warmup=1, sync=dr.sync_thread)
+        walls = [[s.wall for s in case] for case in samples]
+        wall = [a / b for a, b in zip(*walls)]
+        cpu = [a.cpu / b.cpu for a, b in zip(*samples)]
         q1, _, q3 = statistics.quantiles(wall, n=4)
-        print(f"{label(ours):24s} {label(theirs):32s} "
-              f"{statistics.median(t[0] for t in times[0]):9.3f} "
-              f"{statistics.median(t[0] for t in times[1]):10.3f} {statistics.median(wall):7.3f} "
-              f"{q1:6.3f}-{q3:6.3f} {statistics.median(cpu):9.3f}")
+        low, high = paired_time_ratio(*walls).interval()
+        print(f"{label(ours):24s} {label(theirs):32s} {statistics.median(walls[0]):9.3f} "
+              f"{statistics.median(walls[1]):10.3f} {statistics.median(wall):7.3f} "
+              f"{q1:6.3f}-{q3:6.3f} {low:6.3f}-{high:6.3f} {statistics.median(cpu):9.3f}")
+
 
 if __name__ == "__main__":
     main()

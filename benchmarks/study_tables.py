@@ -71,7 +71,8 @@ def main() -> None:
             print(f"| `{name}` | " + " | ".join(
                 _iv(by_spp[n]["efficiency_ratio"], by_spp[n]["efficiency_ratio_low"],
                     by_spp[n]["efficiency_ratio_high"]) for n in counts) + " |")
-        biased = [f"`{c['sampler']}` @{c['spp']} ({c['bias']:+.1e}, {abs(c['bias_z']):.1f} sigma)"
+        _print_split(samplers, baseline, args.min_spp)
+        biased = [f"`{c['sampler']}` @{c['spp']} ({c['bias']:+.1e}, t = {c['bias_z']:+.1f})"
                   for by_spp in samplers.values() for c in by_spp.values() if c["biased"]]
         print(f"\nBiased cells (Holm, 5% family-wise): {', '.join(biased) or 'none'}")
         mine_names = [s for s in ours if s in samplers]
@@ -95,6 +96,40 @@ def main() -> None:
                 paired_time_ratio(a["times"], b["times"]))
             low, high = ratio.interval()
             print(f"| {n} | `{mine}` | `{other}` | {_iv(ratio.value, low, high)} |")
+
+
+def _print_split(samplers: dict[str, dict[int, dict]], baseline: str, min_spp: int) -> None:
+    """Where the ratios' intervals come from: the half-width of the time part (the
+    paired time ratio) and of the error part (the two excess MSEs) at spp >= min_spp."""
+    from mcrt.analysis.convergence import LogEstimate, excess_mse, paired_time_ratio
+
+    if baseline not in samplers:
+        return
+    time_part, error_part, total = [], [], []
+    for name, by_spp in samplers.items():
+        for n, c in by_spp.items():
+            if name == baseline or n < min_spp or c["efficiency_ratio"] is None:
+                continue
+            b = samplers[baseline][n]
+            t = paired_time_ratio(c["times"], b["times"])
+            low, high = t.interval()
+            time_part.append(max(t.value / low, high / t.value) - 1)
+            ea = excess_mse([r["mse"] for r in c["per_seed"]], c["mse_floor"])
+            eb = excess_mse([r["mse"] for r in b["per_seed"]], b["mse_floor"])
+            low, high = LogEstimate(1.0, math.hypot(ea.se_log, eb.se_log), ea.df).interval()
+            error_part.append(high - 1)
+            total.append(max(c["efficiency_ratio"] / c["efficiency_ratio_low"],
+                             c["efficiency_ratio_high"] / c["efficiency_ratio"]) - 1)
+    if not total:
+        return
+
+    def spread(values: list[float]) -> str:
+        values = sorted(values)
+        return f"median +-{100 * values[len(values) // 2]:.1f}%, max +-{100 * values[-1]:.1f}%"
+
+    print(f"\nHalf-widths of the ratios' 95% intervals at spp >= {min_spp}: {spread(total)} "
+          f"({sum(v <= 0.10 for v in total)} of {len(total)} within +-10%); the time part "
+          f"alone {spread(time_part)}, the error part alone {spread(error_part)}")
 
 
 if __name__ == "__main__":
