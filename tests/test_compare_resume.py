@@ -319,10 +319,10 @@ def test_retime_times_the_saved_cells_again_and_keeps_their_errors(study, tmp_pa
     assert _run(capsys, "-q", "compare", str(config), "-o", str(out))[0] == 0
     first = _json(out)
 
-    import mcrt.analysis.study.runner as runner
+    import mcrt.analysis.study.seeds as seeds
 
     scored = []
-    monkeypatch.setattr(runner, "score_seed", lambda *a, **k: scored.append(a))
+    monkeypatch.setattr(seeds, "score_seed", lambda *a, **k: scored.append(a))
     renders = Renders(monkeypatch)
     code, stdout, err = _run(capsys, "-q", "compare", str(config), "-o", str(out), "--retime")
     assert code == 0, err

@@ -1,4 +1,4 @@
-"""The study's figures (:mod:`mcrt.analysis.plots`): what they show and that none of
+"""The study's figures (:mod:`mcrt.analysis.study.figures`): what they show and that none of
 their text overlaps.
 
 Drawn from a synthetic :class:`~mcrt.analysis.study.StudyResult` built without
@@ -21,6 +21,7 @@ import pytest
 
 from mcrt.analysis import plots
 from mcrt.analysis.study import CellImages, ReferenceInfo, StudyResult, parse_config
+from mcrt.analysis.study import figures as study_figures
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -129,11 +130,11 @@ def synthetic_result(samplers: tuple[str, ...] = SAMPLERS, spp: tuple[int, ...] 
 def write_figures(result: StudyResult, out: Path) -> list[Path]:
     """The report's four kinds of figure as PNG in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    figures = {"error_vs_spp": (plots.error_figure(result, "spp"), 110),
-               "error_vs_time": (plots.error_figure(result, "seconds"), 110),
-               "summary": (plots.summary_figure(result), 100)}
+    figures = {"error_vs_spp": (study_figures.error_figure(result, "spp"), 110),
+               "error_vs_time": (study_figures.error_figure(result, "seconds"), 110),
+               "summary": (study_figures.summary_figure(result), 100)}
     for scene in result.scenes:
-        figures[f"images_{scene}"] = (plots.images_figure(result, scene), 100)
+        figures[f"images_{scene}"] = (study_figures.images_figure(result, scene), 100)
     paths = []
     for name, (fig, dpi) in figures.items():
         plots.save_figure(fig, out / f"{name}.png", dpi=dpi)
@@ -192,12 +193,12 @@ def overlaps(fig, tolerance: float = 0.5) -> list[tuple[str, str]]:
     return out
 
 
-FIGURES = {"error_vs_spp": lambda r: plots.error_figure(r, "spp"),
-           "error_vs_time": lambda r: plots.error_figure(r, "seconds"),
-           "summary": plots.summary_figure,
-           "summary_cornell": lambda r: plots.summary_figure(r, scene="cornell_box"),
-           "images_checkerboard": lambda r: plots.images_figure(r, "checkerboard"),
-           "images_cornell_box": lambda r: plots.images_figure(r, "cornell_box")}
+FIGURES = {"error_vs_spp": lambda r: study_figures.error_figure(r, "spp"),
+           "error_vs_time": lambda r: study_figures.error_figure(r, "seconds"),
+           "summary": study_figures.summary_figure,
+           "summary_cornell": lambda r: study_figures.summary_figure(r, scene="cornell_box"),
+           "images_checkerboard": lambda r: study_figures.images_figure(r, "checkerboard"),
+           "images_cornell_box": lambda r: study_figures.images_figure(r, "cornell_box")}
 
 
 @pytest.mark.parametrize("name", sorted(FIGURES))
@@ -254,7 +255,7 @@ def test_time_plot_labels_spp_at_its_points(flagged):
     """The time plot labels points with their spp: every sample count is shown
     somewhere, each label near a point of that spp; labels that found no free
     place are hidden, not dropped on top of others."""
-    fig = plots.error_figure(flagged, "seconds")
+    fig = study_figures.error_figure(flagged, "seconds")
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
     for ax, scene in zip(fig.axes, flagged.scenes):
@@ -270,7 +271,7 @@ def test_time_plot_labels_spp_at_its_points(flagged):
 
 def test_spp_plot_has_spp_ticks_and_no_point_labels(flagged):
     """Against spp the x ticks are the study's sample counts: no point labels."""
-    fig = plots.error_figure(flagged, "spp")
+    fig = study_figures.error_figure(flagged, "spp")
     fig.canvas.draw()
     for ax in fig.axes:
         assert _spp_labels(ax) == []
@@ -289,7 +290,7 @@ def test_error_bars(flagged, axis):
     """Vertical bars of +-1 standard error of the mean MSE (mse_sd / sqrt(K),
     the lower one cut at 95% of the value) on both plots; horizontal bars over
     the 95% time interval on the time plot only; one container per sampler."""
-    fig = plots.error_figure(flagged, axis)
+    fig = study_figures.error_figure(flagged, axis)
     k = len(flagged.config.seeds)
     for ax, scene in zip(fig.axes, flagged.scenes):
         containers = _errorbars(ax)
@@ -323,7 +324,7 @@ def test_error_bars(flagged, axis):
 def test_summary_headline_is_error_against_spp(flagged):
     """The summary's first plots are excess MSE against spp (log axes), one per
     scene, over the error maps titled with their time in ms."""
-    fig = plots.summary_figure(flagged)
+    fig = study_figures.summary_figure(flagged)
     for ax, scene in zip(fig.axes, flagged.scenes):
         assert ax.get_title() == scene
         assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
@@ -368,7 +369,7 @@ def test_marks_appear_only_for_flagged_cells(flagged, clean):
     rings exactly at the biased ones (both plots), each explained once in the
     legend, and neither mark nor entry without such a cell."""
     for axis in ("seconds", "spp"):
-        for ax, scene in zip(plots.error_figure(flagged, axis).axes, flagged.scenes):
+        for ax, scene in zip(study_figures.error_figure(flagged, axis).axes, flagged.scenes):
             cell = {(c["sampler"], c["spp"]): c for c in flagged.cells if c["scene"] == scene}
             unstable = [(cell[(s, n)][axis], cell[(s, n)]["mse_excess"])
                         for sc, s, n in UNSTABLE if sc == scene]
@@ -383,7 +384,7 @@ def test_marks_appear_only_for_flagged_cells(flagged, clean):
             else:  # timing plays no part against spp
                 assert _hollow(ax) == []
                 assert not any("hollow" in name for name in names)
-        for ax in plots.error_figure(clean, axis).axes:
+        for ax in study_figures.error_figure(clean, axis).axes:
             assert _hollow(ax) == [] and _rings(ax) == []
             assert not any("hollow" in n or "red ring" in n for n in _legend_names(ax))
 
@@ -397,7 +398,7 @@ def test_cells_without_the_new_keys_still_plot(clean):
     old.cells = [{k: v for k, v in c.items()
                   if k not in ("seconds_low", "seconds_high", "time_problems", "biased")}
                  for c in clean.cells]
-    fig = plots.error_figure(old, "seconds")
+    fig = study_figures.error_figure(old, "seconds")
     fig.canvas.draw()
     assert all(_hollow(ax) == [] and _rings(ax) == [] for ax in fig.axes)
 
@@ -405,12 +406,12 @@ def test_cells_without_the_new_keys_still_plot(clean):
 @pytest.mark.parametrize("value, text", [(0, "0"), (0.05, "0.05"), (-0.125, "-0.125"),
                                          (2e-5, "2e-5"), (1.5e-3, "0.0015"), (12345.0, "1.23e4")])
 def test_compact_tick_labels(value, text):
-    assert plots._compact(value) == text
+    assert study_figures._compact(value) == text
 
 
 def test_colour_bars_have_few_ticks(flagged):
     """Colour bars have 3 to 6 intervals between ticks, about one per 70 pixels."""
-    for fig in (plots.summary_figure(flagged), plots.images_figure(flagged, "checkerboard")):
+    for fig in (study_figures.summary_figure(flagged), study_figures.images_figure(flagged, "checkerboard")):
         fig.canvas.draw()
         bars = [ax for ax in fig.axes if ax.get_xlabel().startswith(("luminance", "sd of",
                                                                     "checkerboard:"))]

@@ -27,7 +27,7 @@
 The columns of results.csv, the cells' keys, the definitions and the columns
 of the report's tables all derive from the declaration of a cell's fields,
 :mod:`mcrt.analysis.study.fields`; the figures are drawn by
-:mod:`mcrt.analysis.plots`.
+:mod:`mcrt.analysis.study.figures`.
 
 A partial result (an interrupted study, :attr:`StudyResult.partial`) is written
 the same way and marked in every file: ``"partial": true`` and a ``progress``
@@ -53,10 +53,11 @@ import numpy as np
 
 from ..core.atomic import atomic_path, ensure_writable_dir
 from .aliasing import UNMEASURED
-from .plots import error_figure, images_figure, save_figure, summary_figure
+from .plots import save_figure
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
 from .study.conclude import bias_lines, timing_lines
 from .study.fields import CELL_COLUMNS, CSV_COLUMNS, DEFINITIONS, FIT_COLUMNS, Field
+from .study.figures import error_figure, images_figure, summary_figure
 from .viewer import HELP, viewer_assets, viewer_sections
 from .viewer.files import Links, write_exrs
 
