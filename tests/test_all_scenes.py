@@ -64,6 +64,7 @@ SMALL = {"width": "16", "height": "12"}
 #: Shipped scenes: scene parameters for a tiny render (no entry: the scene is already tiny).
 SHIPPED: dict[str, dict[str, str]] = {
     "checkerboard.xml": SMALL, "cornell_box.xml": {"res": "16"}, "edges.xml": SMALL,
+    "glossy_bias.xml": {"res": "12"},
     **{f"effects/{n}.xml": SMALL for n in ("aa", "combined", "dof", "glossy", "motion",
                                           "soft_shadows")},
     "filters/slanted_edge.xml": SMALL,
@@ -237,6 +238,8 @@ PLAN_ELSEWHERE = {
 EFFECTS: dict[str, set[str]] = {
     # a direct integrator; a rectangle area light over the edge objects
     "edges.xml": {"aa", "soft_shadows"},
+    # a rough copper floor reflecting a tilted area light onto a diffuse wall, path max_depth 3
+    "glossy_bias.xml": {"aa", "soft_shadows", "glossy", "indirect"},
     # emitting halves seen directly by path max_depth 1: their light reaches nothing
     "filters/slanted_edge.xml": {"aa"},
     # one sphere under a constant environment: path/aov/moment find no second bounce

@@ -92,7 +92,7 @@ def test_the_report_is_one_offline_file_with_a_viewer(study):
     assert "image-rendering:pixelated" in html and "DecompressionStream" in html
     assert "<nav class='toc'>" in html and "href='#viewer-0'" in html
     assert html.count("<table class=\"sortable") >= 3
-    assert "unresolved" in html and "labelled with its sample count" in html
+    assert "unresolved" in html and "labels give the sample count" in html
 
 
 def test_viewer_data_hold_the_true_values(study):
