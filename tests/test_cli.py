@@ -77,6 +77,11 @@ def no_render(monkeypatch):
     (["render", CORNELL, "-o", "/proc/no/such/dir/img"], "cannot create output directory"),
     (["render"], "required"),
     (["nosuchcommand"], "invalid choice"),
+    (["render", CORNELL, "-D", "res=0"], "the film has 0x0 pixels"),
+    (["render", CORNELL, "-D", "res=0", "--adaptive"], "the film has 0x0 pixels"),
+    (["reference", CORNELL, "-D", "res=0", "--spp", "16"], "the film has 0x0 pixels"),
+    (["plan", str(Path(CORNELL).parent / "checkerboard.xml"), "-D", "width=0"],
+     "the film has 0x240 pixels"),
 ])
 def test_user_errors_are_one_line_before_rendering(capsys, no_render, argv, message):
     code, stdout, stderr = run_cli(capsys, *argv)

@@ -76,6 +76,9 @@ def test_shipped_configs_are_valid():
     (('"jittered"', '{name = "jittered", params = {jitter = 2.0}}'), "jitter"),
     (("seeds = 2", "seeds = 2\nimage_spp = 8"), "image_spp"),
     (("[reference]", "[reference\n"), "invalid TOML"),
+    (("width = 64", "width = 0"), "the film has 0x48 pixels"),
+    (("seeds = 2", "seeds = 2\ntime_rounds = 1"), "time_rounds"),
+    (("seeds = 2", "seeds = 2\nbaseline = \"sobol\""), "baseline 'sobol' is not one of"),
 ])
 def test_bad_configs_fail_before_rendering_with_one_line(tmp_path, capsys, change, message):
     path = _config(tmp_path, GOOD.replace(*change))

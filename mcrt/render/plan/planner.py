@@ -60,6 +60,7 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
     decide_measured(decisions, facts)
     scene = _instantiate(desc) if edit_built(facts, decisions) else facts.scene
     sampling_integrator(scene)  # one the engine drives (not ptracer, stokes, ...), or say so
+    _check_film(scene, path)
     bake_pose(scene, decisions, facts.shutter[0])
 
     sampler = scene.sensors()[0].sampler()
@@ -78,6 +79,17 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
     planned = PlannedScene(plan, scene, decisions.motions, step_px)
     planned.plan.subframes = planned.subframes_for(plan.spp)
     return planned
+
+
+def _check_film(scene: mi.Scene, path: str | Path) -> None:
+    """A film with no pixels (``-D res=0``, ``width = 0``) is refused up front, in
+    one line, before any command would fail on it deep inside a render."""
+    film = scene.sensors()[0].film()
+    width, height = (int(v) for v in film.crop_size())
+    if width < 1 or height < 1:
+        raise SceneError(f"{path}: the film has {width}x{height} pixels; an image needs at "
+                         f"least 1x1 (check the film's width and height, or the $parameters "
+                         f"that set them)")
 
 
 def _instantiate(desc: SceneDescription) -> mi.Scene:
