@@ -283,3 +283,27 @@ def test_recorded_command_lines_keep_every_setting_that_changes_pixels():
         assert any(words[i:i + 2] == pair for i in range(len(words))), pair
     assert "--multisample" in words and "--adaptive" in words
     assert any(words[i] == "--threshold" and words[i + 1] == "0.02" for i in range(len(words)))
+
+
+def test_progress_off_a_terminal_is_plain_lines_for_a_log(capsys, monkeypatch):
+    """stderr is not a terminal here (captured): no redrawn bar, no carriage
+    returns; a line at most every LOG_INTERVAL seconds and one at the end."""
+    import mcrt.core.progress as progress
+
+    with progress.Progress(10, unit="render", desc="study") as bar:
+        for _ in range(10):
+            bar.update()
+    err = capsys.readouterr().err
+    assert "\r" not in err and err.splitlines() == [err.splitlines()[-1]]
+    assert err.startswith("study: 10/10 renders (100%), ")
+    monkeypatch.setattr(progress, "LOG_INTERVAL", 0.0)
+    with progress.Progress(4, unit="pass", desc="render") as bar:
+        bar.describe("render: cornell")
+        for _ in range(4):
+            bar.update()
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("render: cornell: 1/4 passes (25%), ") and "left" in lines[0]
+    assert lines[3].startswith("render: cornell: 4/4 passes (100%)") and len(lines) == 5
+    with progress.Progress(4, enabled=False) as bar:
+        bar.update(4)
+    assert capsys.readouterr().err == ""

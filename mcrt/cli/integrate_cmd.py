@@ -15,6 +15,7 @@ from ..analysis.integrate import (
     time_samplers,
 )
 from ..core.atomic import atomic_path
+from ..core.progress import Progress
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
 from . import SUMMARIES, _common, _integrate_peers
@@ -108,25 +109,16 @@ def run(args: argparse.Namespace) -> int:
         args.trials = DEFAULT_TRIALS
     integrand = INTEGRANDS[args.integrand]
 
-    bar = None
-    if not args.quiet:
-        from tqdm import tqdm
-        bar = tqdm(total=len(counts) * len(samplers), unit="N", desc="integrate", leave=False,
-                   dynamic_ncols=True)
+    bar = Progress(len(counts) * len(samplers), not args.quiet, unit="N", desc="integrate")
     results = {}
-    try:
+    with bar:
         for name in samplers:
-            if bar is not None:
-                bar.set_postfix_str(name)
+            bar.postfix(name)
             results[name] = run_convergence(
                 name, [args.integrand], counts, max_trials=args.trials, budget=args.budget,
-                seed=args.seed, timed=False, progress=bar.update if bar else None)[args.integrand]
-        if bar is not None:
-            bar.set_postfix_str("timing (interleaved rounds)")
+                seed=args.seed, timed=False, progress=bar.update)[args.integrand]
+        bar.postfix("timing (interleaved rounds)")
         time_samplers(results.values(), rounds=3, seed=args.seed)
-    finally:
-        if bar is not None:
-            bar.close()
 
     _print_table(integrand, results)
     _write_outputs(out, args, integrand, results)
