@@ -661,3 +661,19 @@ def test_wavefronts_split_in_chunks_give_the_same_bits(edges, name):
     assert split.image.tobytes() == whole.image.tobytes()
     assert np.array_equal(split.spp, whole.spp)
     assert [p.samples for p in split.passes] == [p.samples for p in whole.passes]
+
+
+def test_a_render_that_ran_out_of_budget_says_so(tmp_path, capsys):
+    """When most pixels fail the error test at max_spp the budget, not the
+    threshold, made the image: the command says so and how to change it; a
+    render whose pixels met the threshold says nothing of the kind."""
+    small = ["-D", "width=32", "-D", "height=24"]
+    assert main(["-q", "render", str(EDGES), *small, "--adaptive", "--threshold", "0.001",
+                 "--max-spp", "64", "-o", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    note = next(line for line in out.splitlines() if line.startswith("note: "))
+    assert "ran out of the budget of 64 spp" in note and "raise --max-spp" in note
+    assert float(note.split("%")[0].split()[-1]) > 50
+    assert main(["-q", "render", str(EDGES), *small, "--adaptive", "--threshold", "0.2",
+                 "--max-spp", "256", "-o", str(tmp_path / "b")]) == 0
+    assert "ran out of the budget" not in capsys.readouterr().out

@@ -376,9 +376,20 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     if result.nonfinite.sum():
         print(f"non-finite samples: {int(result.nonfinite.sum())} (NaN/Inf, left out; "
               f"{int((result.nonfinite > 0).sum())} pixels affected, see layer 'nonfinite')")
+    exhausted = 1.0 - float(result.converged.mean())
+    if exhausted > EXHAUSTED_SHARE:
+        print(f"note: {100 * exhausted:.1f}% of pixels ran out of the budget of "
+              f"{settings.max_spp} spp without meeting the threshold "
+              f"{settings.threshold:g}: their error is the budget's, not the threshold's; "
+              f"raise --max-spp (or the threshold) to let the adaptive sampler choose")
     print(f"wrote {exr_path}, {png_path} and {heat_path} (sample counts, log scale "
           f"{settings.min_spp}..{settings.max_spp})")
     return 0
+
+
+#: Above this share of pixels that did not pass the error test, an adaptive render says
+#: that the budget, not the threshold, decided the image.
+EXHAUSTED_SHARE = 0.5
 
 
 def _check_memory(scene, settings) -> None:
