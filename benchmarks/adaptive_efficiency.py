@@ -48,6 +48,7 @@ import mcrt  # noqa: F401  (registers the plugins)
 from mcrt.analysis.reference import get_reference
 from mcrt.core.render import render_film
 from mcrt.core.sampling import make_sampler
+from mcrt.core.timing import round_orders
 from mcrt.render.adaptive import AdaptiveSettings, pass_time_fit, render_adaptive
 from mcrt.render.scene import load_scene
 
@@ -188,9 +189,8 @@ def main(argv=None) -> int:
     records = {config: {"seconds": [], "cpu": [], "relmse": [], "spp": [], "passes": []}
                for config in configs}
     last_adaptive = {}
-    for r in range(args.repeats):
-        order = configs if r % 2 == 0 else configs[::-1]
-        for config in order:
+    for r, shuffled in enumerate(round_orders(len(configs), args.repeats)):  # the protocol's
+        for config in (configs[i] for i in shuffled):
             image, seconds, cpu, spp, result = render(config, seed=r + 1)
             rec = records[config]
             rec["seconds"].append(seconds)

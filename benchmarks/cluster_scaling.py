@@ -8,7 +8,8 @@ Modes (each timed after a warm-up run that compiles kernels and plans scenes):
   Dr.Jit threads each: on 2 cores, one worker with 2 threads / two with 1 (cluster
   start-up is timed separately, not in the runs).
 
-Rounds are interleaved (every mode once per round), ratios are medians. Prints:
+Rounds are interleaved (every mode once per round, shuffled: mcrt.core.timing), ratios
+are medians. Prints:
 
 * the **per-task overhead** of the cluster: ``(local:1 - here:2) / tasks`` (the
   same threads, the same tasks: what scheduling, transfers and the client's fold
@@ -69,6 +70,7 @@ def main() -> None:
     from mcrt.analysis.reference import get_reference
     from mcrt.analysis.study import load_config, run_study
     from mcrt.core.cluster import DaskExecutor
+    from mcrt.core.timing import round_orders
 
     config_path = Path(os.environ["MCRT_CACHE_DIR"]) / "scaling.toml"
     config_path.write_text(STUDY.format(scene=CORNELL, res=args.study_res))
@@ -109,9 +111,8 @@ def main() -> None:
         study(mode)
     ref_times: dict[str, list[float]] = {m: [] for m in modes}
     study_times: dict[str, list[float]] = {m: [] for m in modes}
-    for r in range(args.rounds):
-        order = list(modes) if r % 2 == 0 else list(reversed(modes))
-        for mode in order:
+    for r, shuffled in enumerate(round_orders(len(modes), args.rounds)):  # the protocol's
+        for mode in (list(modes)[i] for i in shuffled):
             ref_times[mode].append(reference(mode))
             study_times[mode].append(study(mode))
         print(f"  round {r + 1}: " + ", ".join(f"{m} {ref_times[m][-1]:.2f}/"

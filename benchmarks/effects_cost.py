@@ -41,6 +41,7 @@ import numpy as np
 import mcrt  # noqa: F401  (variant, plugins)
 from mcrt.analysis.metrics import rel_mse
 from mcrt.core.render import render_film
+from mcrt.core.timing import round_orders
 from mcrt.render.motion import strobing_index
 from mcrt.render.plan import plan_scene
 from mcrt.render.scene import load_scene
@@ -71,13 +72,14 @@ def timed_mitsuba(scene: mi.Scene, spp: int, seed: int) -> float:
 
 
 def interleaved(runs: dict[str, callable], rounds: int) -> dict[str, list[float]]:
-    """Warm every runner up once, then time them in alternating orders."""
+    """Warm every runner up once, then time them in the timing protocol's shuffled
+    rounds (:func:`mcrt.core.timing.round_orders`)."""
     for run in runs.values():
         run(0)
     names = list(runs)
     times = {name: [] for name in names}
-    for r in range(rounds):
-        for name in (names if r % 2 == 0 else names[::-1]):
+    for r, order in enumerate(round_orders(len(names), rounds)):
+        for name in (names[i] for i in order):
             times[name].append(runs[name](r + 1))
     return times
 

@@ -2,9 +2,10 @@
 
 ``mcrt.core.render.render_film`` and ``mi.render`` of the same scene (the Cornell
 box with its box filter, and a copy with Mitsuba's default Gaussian filter),
-sampler and spp, each warmed up once, then ``--rounds`` interleaved runs (the
-order alternates); wall and CPU time (all threads) with ``dr.sync_thread()`` and
-the image copied to numpy in both. Prints the medians and the ratios of medians
+sampler and spp, timed by mcrt's protocol (:func:`mcrt.core.timing.run_interleaved`:
+each warmed up once, then ``--rounds`` rounds in a shuffled order); wall and CPU
+time (all threads) with ``dr.sync_thread()`` and the image copied to numpy in
+both. Prints the medians and the ratios of medians
 (engine / mi.render), and, as a floor for any design that splits a render into
 passes, ``mi.render`` itself called once per pass of the engine's pass shape
 (same number of samples). This separates the engine's cost from the command
@@ -20,7 +21,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import drjit as dr
@@ -32,19 +32,12 @@ mi.set_variant("llvm_ad_rgb")
 import mcrt  # noqa: E402,F401  (registers the samplers)
 from mcrt.core.render import render_film  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
+from mcrt.core.timing import run_interleaved  # noqa: E402
 
 CORNELL = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
 
 
 BOX_FILTER = '<rfilter type="box"/>'
-
-
-def timed(fn) -> tuple[float, float]:
-    """(wall, CPU) seconds of ``fn()``, synchronised."""
-    start, cpu = time.perf_counter(), time.process_time()
-    fn()
-    dr.sync_thread()
-    return time.perf_counter() - start, time.process_time() - cpu
 
 
 def scene_file(kind: str, folder: Path) -> Path:
@@ -94,14 +87,10 @@ def row(path: Path, kind: str, res: int, name: str, spp: int, rounds: int) -> No
         for index in range(passes):
             np.array(mi.render(scene, spp=group, seed=mi.UInt32(index)))
 
-    runs: dict = {fn: [] for fn in (ours, theirs, split)}
-    for fn in runs:
-        fn()
-    for r in range(rounds):
-        for fn in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
-            runs[fn].append(timed(fn))
-    wall = {fn: statistics.median(t[0] for t in v) for fn, v in runs.items()}
-    cpu = {fn: statistics.median(t[1] for t in v) for fn, v in runs.items()}
+    cases = (ours, theirs, split)
+    samples = run_interleaved(cases, rounds, warmup=1, sync=dr.sync_thread)
+    wall = {fn: statistics.median(t.wall for t in v) for fn, v in zip(cases, samples)}
+    cpu = {fn: statistics.median(t.cpu for t in v) for fn, v in zip(cases, samples)}
     print(f"| {res}^2 {kind} | {name} | {wall[ours]:.3f} | {wall[theirs]:.3f} | "
           f"{wall[ours] / wall[theirs]:.3f} | {cpu[ours] / cpu[theirs]:.3f} | "
           f"{wall[split]:.3f} ({passes} x {group} spp) | {wall[split] / wall[theirs]:.3f} |",

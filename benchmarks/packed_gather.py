@@ -12,7 +12,8 @@ values are laid out as
 * ``8, 3 padded``: one packet of 8 (3 wasted floats a sample).
 
 Each layout's kernel is compiled and run once, then ``--rounds`` rounds time
-each (in turn, after ``dr.sync_thread``); printed: the median ms and the ratio
+each (the timing protocol's shuffled rounds, ``mcrt.core.timing``, with
+``dr.sync_thread``); printed: the median ms and the ratio
 to ``separate``.
 
 A second table times mcrt's own kernel (``FilterReach.sums`` with Mitsuba's
@@ -29,7 +30,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-import time
+from collections.abc import Callable
 from typing import Any
 
 import drjit as dr
@@ -39,6 +40,7 @@ mi.set_variant("llvm_ad_rgb")
 
 from mcrt.core.packed import Packed  # noqa: E402  (needs the variant)
 from mcrt.core.reach import BLOCK, FilterReach  # noqa: E402
+from mcrt.core.timing import run_interleaved  # noqa: E402
 
 OFFSETS = [(dx, dy) for dy in range(-2, 3) for dx in range(-2, 3)]
 
@@ -104,14 +106,12 @@ def main() -> int:
     reads = layouts(columns)
     for read in reads.values():  # compile
         dr.eval(kernel(read, args.res, args.spp))
-    times: dict[str, list[float]] = {name: [] for name in reads}
-    for _ in range(args.rounds):
-        for name, read in reads.items():
-            dr.sync_thread()
-            start = time.perf_counter()
-            dr.eval(kernel(read, args.res, args.spp))
-            dr.sync_thread()
-            times[name].append(time.perf_counter() - start)
+    def case(read: Any) -> Callable[[], None]:
+        return lambda: dr.eval(kernel(read, args.res, args.spp))
+
+    samples = run_interleaved([case(read) for read in reads.values()], args.rounds, warmup=0,
+                              sync=dr.sync_thread)  # the timing protocol (compiled above)
+    times = {name: [s.wall for s in series] for name, series in zip(reads, samples)}
     base = statistics.median(times["separate"])
     print(f"\nGather kernel, {args.res}^2 pixels x {args.spp} samples x 25 neighbours, "
           f"median of {args.rounds} rounds:\n")
@@ -150,14 +150,12 @@ def blocks(columns: list[Any], args: argparse.Namespace) -> None:
     for shape in shapes:  # compile, and compare the bits
         got = [dr.ravel(s).numpy() for s in film_sums(columns, args.res, args.spp, shape)]
         same[shape] = all((a == b).all() for a, b in zip(got, first))
-    times: dict[tuple[int, ...], list[float]] = {shape: [] for shape in shapes}
-    for _ in range(args.rounds):
-        for shape in shapes:
-            dr.sync_thread()
-            start = time.perf_counter()
-            film_sums(columns, args.res, args.spp, shape)
-            dr.sync_thread()
-            times[shape].append(time.perf_counter() - start)
+    def sums(shape: tuple[int, ...]) -> Callable[[], None]:
+        return lambda: film_sums(columns, args.res, args.spp, shape)
+
+    samples = run_interleaved([sums(shape) for shape in shapes], args.rounds, warmup=0,
+                              sync=dr.sync_thread)
+    times = {shape: [s.wall for s in series] for shape, series in zip(shapes, samples)}
     base = statistics.median(times[shapes[0]])
     print(f"\nFilterReach (Gaussian film, 4 sums), {args.res}^2 pixels x {args.spp} samples, "
           f"by targets per lane, median of {args.rounds} rounds (mcrt: {BLOCK[0]}x{BLOCK[1]}):\n")

@@ -3,7 +3,7 @@
 A many-mesh scene is generated (``--meshes`` OBJ spheres, default 400 of ~3000
 triangles each (``--segments``), in
 a grid under an environment light and one area light, with a path integrator),
-then three measurements alternate in every round:
+then three measurements run in every round, in a shuffled order:
 
 * **load**: ``mi.load_file(scene)`` in this process;
 * **plan**: :func:`mcrt.render.plan.plan_scene` (reads the XML once, decides
@@ -13,7 +13,8 @@ then three measurements alternate in every round:
   each from start to exit.
 
 Every measurement runs once as a warm-up (Dr.Jit's kernel cache, the page
-cache), then ``--rounds`` rounds alternate which one starts first. Prints the
+cache), then ``--rounds`` rounds in an order shuffled per round (the timing
+protocol's, ``mcrt.core.timing``). Prints the
 medians and the median of the per-round ratios with their spread (min..max).
 Goals: plan <= 1.1x one load; render end to end <= 1.1x plain.
 
@@ -127,13 +128,16 @@ def run_process(cmd: list[str]) -> float:
 
 
 def interleaved(cases: dict[str, Callable[[], float]], rounds: int) -> dict[str, list[float]]:
-    """Times of every case per round, the starting case rotating each round."""
+    """Times of every case per round, in the timing protocol's order shuffled per
+    round (:func:`mcrt.core.timing.round_orders`)."""
+    from mcrt.core.timing import round_orders
+
     for case in cases.values():
         case()  # warm-up
     names = list(cases)
     times: dict[str, list[float]] = {name: [] for name in names}
-    for r in range(rounds):
-        for name in names[r % len(names):] + names[:r % len(names)]:
+    for order in round_orders(len(names), rounds):
+        for name in (names[i] for i in order):
             times[name].append(cases[name]())
     return times
 

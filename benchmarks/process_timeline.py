@@ -1,8 +1,8 @@
 """Where a whole ``mcrt render`` process spends its time, stage by stage, next to
 the plain Mitsuba script of ``render_overhead.py``.
 
-Each round runs both processes (order alternating). A process notes the wall
-clock when its script starts, after its imports, after loading (plain) or
+Each round runs both processes (order shuffled per round: mcrt.core.timing). A
+process notes the wall clock when its script starts, after its imports, after loading (plain) or
 planning (mcrt) the scene, before and after rendering, and after writing its
 files; the parent notes spawn and exit. Printed: the median milliseconds of
 each stage over the rounds:
@@ -131,8 +131,11 @@ def main() -> int:
         outs = {"plain": Path(tmp) / "plain.exr", "mcrt": Path(tmp) / "mcrt"}
         for kind in rows:  # warm-up: kernel cache, page cache
             run_child(kind, args, outs[kind])
-        for r in range(args.rounds):
-            for kind in ("mcrt", "plain") if r % 2 == 0 else ("plain", "mcrt"):
+        from mcrt.core.timing import round_orders  # the driver only: children import nothing
+
+        kinds = ("mcrt", "plain")
+        for order in round_orders(2, args.rounds):  # the timing protocol's shuffled rounds
+            for kind in (kinds[i] for i in order):
                 rows[kind].append(run_child(kind, args, outs[kind]))
     print(f"\nOne {args.res}^2 render ({args.sampler}, {args.spp} spp, box filter) as a whole "
           f"process, median ms of {args.rounds} interleaved rounds:\n")

@@ -13,10 +13,11 @@ SIZE x SIZE. Both sides draw SPP samples per pixel with Mitsuba's
                   each time), so the state checkpoint after every pass and the
                   final cache file are written.
 
-Each round runs the three in rotating order after a warm-up that compiles and
-caches every kernel; every timing is wall time with ``dr.sync_thread()`` around
-it, and process CPU time (all Dr.Jit threads) is recorded too, as it is less
-sensitive to other programs running on the machine. The script prints medians
+Each round runs the three in a shuffled order (``mcrt.core.timing.round_orders``,
+the timing protocol's) after a warm-up that compiles and caches every kernel;
+every timing is wall time with ``dr.sync_thread()`` around it, and process CPU
+time (all Dr.Jit threads) is recorded too, as it is less sensitive to other
+programs running on the machine. The script prints medians
 and the medians of the per-round ratios:
 
 * ``end-to-end`` wall time of ``get_reference`` / (scene load + ``mi.render``);
@@ -41,6 +42,7 @@ import mitsuba as mi
 
 import mcrt  # noqa: F401  (variant + plugins)
 from mcrt.analysis.reference import get_reference, plan_passes
+from mcrt.core.timing import round_orders
 from mcrt.render.scene import load_scene
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
@@ -106,10 +108,9 @@ def main() -> None:
     for name in names:  # warm-up: compile and cache every kernel
         runs[name](0)
     times: dict[str, list[dict[str, float]]] = {name: [] for name in names}
-    for r in range(args.rounds):
-        order = names[r % 3:] + names[:r % 3]  # rotate who goes first
-        for name in order:
-            times[name].append(runs[name](r + 1))
+    for r, order in enumerate(round_orders(len(names), args.rounds)):  # the protocol's order
+        for i in order:
+            times[names[i]].append(runs[names[i]](r + 1))
 
     def med(name: str, field: str) -> float:
         return statistics.median(t[field] for t in times[name])

@@ -13,10 +13,11 @@ Cases: resolutions ``--res`` (default 256 and 1024) x the Cornell box with its
 box filter and a copy with a Gaussian filter (written to a temporary directory)
 x samplers ``jittered`` (mcrt's) and ``independent`` (Mitsuba's). Every process
 runs once as a warm-up (Dr.Jit's kernel cache, the page cache, the Poisson
-tables), then ``--rounds`` timed rounds alternate which of the pair starts
-first. Peak RSS comes from ``wait4`` (``ru_maxrss`` of exactly that child), as
-does its CPU time (user + system, all threads: less disturbed by other jobs on
-a shared machine than wall time).
+tables), then ``--rounds`` timed rounds run the pair in an order shuffled per
+round (``mcrt.core.timing.round_orders``, the timing protocol's). Peak RSS comes
+from ``wait4`` (``ru_maxrss`` of exactly that child), as does its CPU time (user
++ system, all threads: less disturbed by other jobs on a shared machine than wall
+time).
 
 The package is byte-compiled first (``compileall``, as ``scripts/setup.sh`` does), so
 neither side compiles Python sources at start-up, whatever ``PYTHONDONTWRITEBYTECODE`` says.
@@ -48,6 +49,8 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from mcrt.core.timing import round_orders
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -173,9 +176,9 @@ def measure_renders(cases: list[Case], spp: int, rounds: int, work: Path, plain:
             run_process(argv, work, work / f"{who}.log")
         problem = check_outputs(case, work)
         series = {who: Series() for who in cmds}
-        for r in range(rounds):
-            order = ("mcrt", "plain") if r % 2 == 0 else ("plain", "mcrt")
-            for who in order:
+        whos = ("mcrt", "plain")
+        for order in round_orders(2, rounds):  # the timing protocol's shuffled rounds
+            for who in (whos[i] for i in order):
                 series[who].runs.append(run_process(cmds[who], work, work / f"{who}.log"))
         print(f"  {case.name}: mcrt {series['mcrt'].median('wall'):.2f} s, "
               f"plain {series['plain'].median('wall'):.2f} s", file=sys.stderr, flush=True)
@@ -191,8 +194,8 @@ def measure_control(case: Case, spp: int, rounds: int, work: Path, plain: Path
     print(f"  {case.name}: A/A control", file=sys.stderr, flush=True)
     run_process(argv, work, work / "control.log")
     first, second = Series(), Series()
-    for r in range(rounds):
-        for series in (first, second) if r % 2 == 0 else (second, first):
+    for order in round_orders(2, rounds):
+        for series in ((first, second)[i] for i in order):
             series.runs.append(run_process(argv, work, work / "control.log"))
     return first, second
 
@@ -208,8 +211,8 @@ def measure_startup(rounds: int, work: Path) -> dict[str, list[float]]:
         run_process(argv, work, work / "startup.log")
     times: dict[str, list[float]] = {name: [] for name in argvs}
     names = list(argvs)
-    for r in range(rounds):
-        for name in names if r % 2 == 0 else names[::-1]:
+    for order in round_orders(len(names), rounds):
+        for name in (names[i] for i in order):
             times[name].append(run_process(argvs[name], work, work / "startup.log").wall)
     return times
 

@@ -106,18 +106,17 @@ class AdaptiveRender:
 
 def pass_time_fit(passes: list[PassRecord]) -> dict[str, float]:
     """Least-squares line ``seconds = intercept + slope * samples`` over passes,
-    with R^2 (the check that a pass costs time in proportion to its samples)."""
-    x = np.array([p.samples for p in passes], dtype=np.float64)
-    y = np.array([p.seconds for p in passes], dtype=np.float64)
-    if x.size < 2 or np.ptp(x) == 0:
-        return {"intercept": float(y.mean()) if y.size else 0.0, "slope": 0.0, "r2": 0.0,
-                "passes": float(x.size)}
-    slope, intercept = np.polyfit(x, y, 1)
-    residual = y - (intercept + slope * x)
-    total = np.sum((y - y.mean()) ** 2)
-    r2 = 1.0 - float(np.sum(residual ** 2) / total) if total > 0 else 1.0
-    return {"intercept": float(intercept), "slope": float(slope), "r2": r2,
-            "passes": float(x.size)}
+    with R^2 (the check that a pass costs time in proportion to its samples):
+    :func:`mcrt.core.timing.fit_cost`, the fixed and per-unit cost of the timing
+    protocol."""
+    from ...core.timing import fit_cost
+
+    fit = fit_cost([p.samples for p in passes], [p.seconds for p in passes])
+    if not np.isfinite(fit.per_unit):  # fewer than two distinct pass sizes
+        mean = float(np.mean([p.seconds for p in passes])) if passes else 0.0
+        return {"intercept": mean, "slope": 0.0, "r2": 0.0, "passes": float(len(passes))}
+    return {"intercept": fit.fixed, "slope": fit.per_unit, "r2": fit.r2,
+            "passes": float(len(passes))}
 
 
 __all__ = ["AdaptiveRender", "PassRecord", "pass_time_fit"]
