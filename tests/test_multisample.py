@@ -218,3 +218,20 @@ def test_cli_multisample(tmp_path, capsys):
     code, out, err = run_cli(capsys, "render", str(scene), "--multisample", "--adaptive",
                              "-q", "-o", str(tmp_path / "out2"))
     assert code != 0 and "cannot be combined" in err
+
+
+def test_multisampling_a_scene_with_shading_noise_says_what_it_costs(tmp_path, capsys):
+    """Soft shadows and indirect light are sampled at the shading rate under
+    --multisample: the command says so; over noise-free shading (the checker
+    scene: textures under a constant light) it says nothing."""
+    from conftest import ROOT
+
+    cornell = ROOT / "scenes" / "cornell_box.xml"
+    code, _, err = run_cli(capsys, "render", str(cornell), "-D", "res=16", "--spp", "4",
+                           "--multisample", "-o", str(tmp_path / "c"))
+    assert code == 0 and "far noisier than supersampling" in err
+    assert "soft_shadows, indirect noise" in err
+    checker = ROOT / "scenes" / "multisample" / "checker.xml"
+    code, _, err = run_cli(capsys, "render", str(checker), "-D", "width=16", "-D", "height=12",
+                           "--spp", "4", "--multisample", "-o", str(tmp_path / "k"))
+    assert code == 0 and "noisier" not in err

@@ -98,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
                         "shading among a pixel's samples of one whole-image pass)")
     planned = plan_scene(args.scene, params, overrides,
                          wrap="multisample" if multisample else None)
+    if multisample:
+        _note_shading_noise(planned.plan.effects_on)
     scene = planned.scene
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
@@ -385,6 +387,22 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     print(f"wrote {exr_path}, {png_path} and {heat_path} (sample counts, log scale "
           f"{settings.min_spp}..{settings.max_spp})")
     return 0
+
+
+#: Effects whose noise multisampling samples at its shading rate, not the pixel's samples.
+SHADING_EFFECTS = ("soft_shadows", "glossy", "indirect")
+
+
+def _note_shading_noise(effects_on: list[str]) -> None:
+    """Multisampling shades once per surface per pixel: stochastic shading (area
+    lights, rough BSDFs, indirect light) then gets that one sample, not the N of
+    supersampling. Say so, once, where a user would otherwise wonder at the noise."""
+    noisy = [e for e in SHADING_EFFECTS if e in effects_on]
+    if noisy:
+        log.warning("--multisample shades each surface once per pixel: this scene's %s noise "
+                    "is sampled at that rate, so the image is far noisier than supersampling "
+                    "at the same spp; multisampling pays off for edges over cheap, noise-free "
+                    "shading (docs/multisampling.md)", ", ".join(noisy))
 
 
 #: Above this share of pixels that did not pass the error test, an adaptive render says
