@@ -143,6 +143,7 @@ def scene_data(result: StudyResult, scene: str,
             "first": encode_array(renders.first), "mean": encode_array(renders.mean),
             "variance": encode_array(renders.variance), "flip": encode_array(flip),
             "flip_mean": flip_mean, "spp": cell["spp"], "mse": cell["mse"],
+            "mse_excess": cell["mse_excess"],
             "rel_mse": cell["rel_mse"], "exr": links.get(key, {})}
         if spp == config.image_spp:
             first = np.where(np.isfinite(renders.first), renders.first, ref)

@@ -416,7 +416,7 @@
     this.status.textContent = s.ref ? "reference, " + d.reference_spp + " spp" : !cell ?
       d.samplers[s.sampler] + " at " + d.spp[s.spp] + " spp: not measured (yet)" :
       d.samplers[s.sampler] + " at " + d.spp[s.spp] + " spp (effective " + cell.spp + "): MSE " +
-      fmt(cell.mse) + ", relMSE " + fmt(cell.rel_mse) + ", mean FLIP of seed " + d.seeds[0] +
+      "\u2212 floor " + fmt(cell.mse_excess) + " (raw MSE " + fmt(cell.mse) + "), relMSE " + fmt(cell.rel_mse) + ", mean FLIP of seed " + d.seeds[0] +
       " " + fmt(cell.flip_mean) + "; zoom " + s.zoom + "\u00d7";
     this.drawColourbar();
     this.place();
