@@ -74,3 +74,21 @@ def test_tutorial_notebook_runs(tmp_path, monkeypatch):
     figures = sum("image/png" in o.get("data", {}) for c in code for o in c.outputs)
     assert figures == 4
     assert not list(workdir.iterdir()), "the notebook wrote files into its directory"
+
+
+def test_the_documented_headless_command_runs_the_notebook():
+    """docs/python-api.md's command, as a user runs it: `jupyter execute` of the
+    environment's Jupyter (no nbconvert), exit status 0, every cell executed."""
+    import subprocess
+    from pathlib import Path
+
+    jupyter = Path(sys.executable).parent / "jupyter"
+    if not jupyter.exists():
+        pytest.skip("jupyter is not installed next to this interpreter")
+    assert ".venv/bin/jupyter execute docs/tutorial.ipynb" in (
+        ROOT / "docs" / "python-api.md").read_text()
+    done = subprocess.run([str(jupyter), "execute", "docs/tutorial.ipynb"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    cells = sum(1 for c in nbformat.read(NOTEBOOK, as_version=4).cells if c.cell_type == "code")
+    assert cells > 0 and "Executing notebook" in done.stderr
