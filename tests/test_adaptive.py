@@ -677,3 +677,32 @@ def test_a_render_that_ran_out_of_budget_says_so(tmp_path, capsys):
     assert main(["-q", "render", str(EDGES), *small, "--adaptive", "--threshold", "0.2",
                  "--max-spp", "256", "-o", str(tmp_path / "b")]) == 0
     assert "ran out of the budget" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", ["jittered", "orthogonal", "ldsampler", "poisson_disk", "sobol"])
+def test_batch_ladder_is_the_scan_s_and_cheap_for_huge_budgets(name, monkeypatch):
+    """The ladder (each batch the largest count the sampler serves within twice the
+    last) equals a plain scan down from each request on small budgets, and a budget
+    of 2^40 samples per pixel needs a few thousand count queries, not weeks of them."""
+    from mcrt.render.adaptive import ladder as lad
+
+    def scan(sampler, min_spp, max_spp):
+        ladder = [lad._count_for(sampler, min_spp)]
+        request = 2 * ladder[0]
+        while request <= max_spp:
+            for r in range(request, ladder[-1], -1):
+                count = lad._count_for(sampler, r)
+                if count is not None and ladder[-1] < count <= request:
+                    ladder.append(count)
+                    break
+            request *= 2
+        return tuple(ladder)
+
+    sampler = make_sampler(name, 16)
+    for low, high in ((16, 1024), (20, 4096), (1, 300)):
+        assert lad.batch_ladder(sampler, low, high) == scan(sampler, low, high), (low, high)
+    calls = []
+    real = lad._count_for
+    monkeypatch.setattr(lad, "_count_for", lambda s, r: calls.append(r) or real(s, r))
+    huge = lad.batch_ladder(sampler, 16, 2 ** 40)
+    assert len(calls) < 5000 and list(huge) == sorted(set(huge)) and huge[-1] <= 2 ** 40

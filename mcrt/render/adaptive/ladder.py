@@ -15,6 +15,12 @@ from ...errors import McrtError
 from .settings import AdaptiveSettings
 
 
+#: The largest batch asked of a sampler. Mitsuba's sample counts are 32-bit, and some
+#: samplers never return when asked for 2^31 or more (``ldsampler``'s rounding to a
+#: power of 4, ``orthogonal``'s prime squares); a larger budget repeats the top batch.
+MAX_BATCH = 2 ** 30
+
+
 def _count_for(sampler: mi.Sampler, request: int) -> int | None:
     """Sample count the sampler uses for ``request`` (None if it refuses)."""
     try:
@@ -39,15 +45,38 @@ def batch_ladder(sampler: mi.Sampler, min_spp: int, max_spp: int) -> tuple[int, 
                             f"more than max_spp {max_spp}")
         ladder = [first]
         request = 2 * first
-        while request <= max_spp:
-            for r in range(request, ladder[-1], -1):  # largest supported count <= request
-                count = _count_for(sampler, r)
-                if count is not None and ladder[-1] < count <= request:
-                    ladder.append(count)
-                    break
+        while request <= min(max_spp, MAX_BATCH):
+            count = _largest_within(sampler, ladder[-1], request)
+            if count is not None:
+                ladder.append(count)
+            elif _count_for(sampler, request) is None:
+                break  # the sampler refuses this count, and so every larger one
             request *= 2
         sampler.set_sample_count(first)
     return tuple(ladder)
+
+
+def _largest_within(sampler: mi.Sampler, low: int, high: int) -> int | None:
+    """The largest count the sampler uses in ``(low, high]`` (None: none).
+
+    A sampler's count is non-decreasing in the request (it rounds up: squares,
+    prime squares, powers of 4) and it refuses every request beyond its limit,
+    so a bisection over requests finds the largest one it serves within ``high``:
+    ~log2(high) calls, where a scan down from ``high`` took up to ``high - low``
+    (hours for a budget of 2^30, weeks for 2^40)."""
+    count = _count_for(sampler, high)
+    if count is not None and low < count <= high:
+        return count
+    best, lo, hi = None, low + 1, high - 1
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        count = _count_for(sampler, mid)
+        if count is not None and count <= high:
+            best = count if count > low else best
+            lo = mid + 1
+        else:
+            hi = mid - 1
+    return best
 
 
 def pass_batch_size(leader: int, ladder: tuple[int, ...], settings: AdaptiveSettings) -> int:
