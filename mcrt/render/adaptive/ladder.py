@@ -14,7 +14,6 @@ from ...core.sampling import quiet_sampler_warnings
 from ...errors import McrtError
 from .settings import AdaptiveSettings
 
-
 #: The largest batch asked of a sampler. Mitsuba's sample counts are 32-bit, and some
 #: samplers never return when asked for 2^31 or more (``ldsampler``'s rounding to a
 #: power of 4, ``orthogonal``'s prime squares); a larger budget repeats the top batch.
