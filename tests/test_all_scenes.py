@@ -1,4 +1,4 @@
-"""Every shipped scene and every scene the test suite writes (issue 12, "Done when"):
+"""Every shipped scene and every scene the test suite writes:
 ``mcrt render`` writes its files and agrees with ``mi.render`` of the same scene,
 and ``mcrt plan`` lists exactly the effects the scene has.
 
@@ -25,8 +25,8 @@ Render agreement
     filtered film by ~2x). The two SEs add in quadrature. At 5 SE a Gaussian
     false alarm has probability 6e-7 per case; the seeds are fixed, so the
     outcome is deterministic. The test is not vacuous: at 16x12 pixels, 16 spp
-    and 4 seeds the SE is 0.1-1% of the mean, so a bias of a few percent (issue
-    12's old-format scene was +4.5%) is 5-40 SE.
+    and 4 seeds the SE is 0.1-1% of the mean, so a bias of a few percent (the
+    old-format scene once was +4.5%) is 5-40 SE.
 
     Handled explicitly, not skipped:
 

@@ -1,4 +1,4 @@
-"""Issue 12, class 6: references and studies with the scene's own
+"""Scenes written by others, their filters: references and studies with the scene's own
 reconstruction filter (gaussian, tent, mitchell), checked against a
 brute-force computation on a tiny image."""
 

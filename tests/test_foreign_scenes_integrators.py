@@ -1,4 +1,4 @@
-"""Issue 12, classes 1-3: scenes written by others use integrators and films
+"""Scenes written by others use integrators and films
 mcrt must handle: AOV wrappers (``aov``, ``moment``), Mitsuba's differentiable
 integrators (``prb``, ``prb_basic``, ``direct_projective``, ``prbvolpath``) and
 film pixel formats other than RGB. The scenes are ours (``scenes/foreign``)."""

@@ -226,7 +226,7 @@ def test_blue_noise_spectrum(cache):
     high = (k > 1.8 * sqrt_n)
     # Threshold: white noise has E[P(k)] = 1 for every k != 0; saturated dart
     # throwing alone has ~0.075 on this band, the relaxed tables ~0.005. 0.02
-    # (issue 13's goal) is far from both: the average over 64 sets and ~200 wave
+    # (the low-frequency goal) is far from both: the average over 64 sets and ~200 wave
     # vectors of values ~0.005 has a standard error ~2e-4.
     assert p[low].mean() < 0.02
     assert p[high].mean() == pytest.approx(1.0, abs=0.3)

@@ -35,7 +35,7 @@ fixed seeds, and every margin is derived from the estimator's distribution:
   The Poisson-disk trials are not fully independent (pixels share its 64 tables,
   decorrelated by symmetries, shifts and permutations), which the wide margin
   also covers.
-* **Poisson-disk rate on the disk** (issue 13: <= -1.4): its relaxed tables
+* **Poisson-disk rate on the disk** (goal: <= -1.4): its relaxed tables
   have no low-frequency floor, so it converges like a stratified sampler
   (measured -1.500 +- 0.019, chi2-scaled, with these settings; dart throwing
   alone gave -1.2, a constant factor over independent points). We require

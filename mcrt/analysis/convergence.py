@@ -114,9 +114,6 @@ class LogEstimate:
             return math.nan, math.nan
         return log_interval(self.value, self.se_log, self.df, confidence)
 
-    def inverse(self) -> LogEstimate:
-        return LogEstimate(1.0 / self.value if self.value else math.nan, self.se_log, self.df)
-
 
 NONE = LogEstimate(math.nan, math.nan, math.nan)
 

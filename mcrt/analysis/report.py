@@ -52,11 +52,11 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_path, ensure_writable_dir
-from .aliasing import UNMEASURED
 from .plots import save_figure
+from .report_tables import cell_header, cell_rows, fmt, summary_header, summary_rows, table
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
 from .study.conclude import bias_lines, timing_lines
-from .study.fields import CELL_COLUMNS, CSV_COLUMNS, DEFINITIONS, FIT_COLUMNS, Field
+from .study.fields import CSV_COLUMNS, DEFINITIONS
 from .study.figures import error_figure, images_figure, summary_figure
 from .viewer import HELP, viewer_assets, viewer_sections
 from .viewer.files import Links, write_exrs
@@ -171,126 +171,6 @@ def _png_data(path: Path) -> str:
     return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
-def _fmt(value: Any, digits: int = 3) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        if not math.isfinite(value):
-            return "&ndash;"
-        if value == 0:
-            return "0"
-        if 1e-3 <= abs(value) < 1e4:
-            return f"{value:.{digits}g}"
-        return f"{value:.{digits - 1}e}"
-    return html.escape(str(value))
-
-
-def _show(field: Field, record: dict[str, Any]) -> str:
-    """The HTML of ``field``'s column in a table row of ``record`` (a cell or a
-    fit), as its :class:`~mcrt.analysis.study.fields.Column` says."""
-    assert field.column is not None
-    show, scale = field.column.show, field.column.scale
-    name = field.name
-
-    def value(key: str = name) -> Any:
-        v = record[key]
-        return v * scale if scale != 1 else v
-
-    if show == "text":
-        return html.escape(str(record[name]))
-    if show == "count":
-        return str(record[name])
-    if show == "flag":
-        return "" if record[name] else html.escape(field.column.false)
-    if show in ("sd", "se"):
-        return f"{_fmt(value())} &plusmn; {_fmt(value(f'{name}_{show}'), 2)}"
-    if show == "interval":
-        return f"{_fmt(value())} [{_fmt(value(f'{name}_low'))}, {_fmt(value(f'{name}_high'))}]"
-    if show == "z":
-        return f"{_fmt(value())} ({_fmt(record[f'{name}_z'], 2)})"
-    return _fmt(value())
-
-
-def _table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
-    cls = f"sortable {cls}".strip()
-    head = "".join(f"<th>{h}</th>" for h in header)
-    body = "\n".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table>'
-
-
-def _verdicts(cells: list[dict[str, Any]]) -> str:
-    """The verdicts of a sampler's cells in words (aliasing, bias)."""
-    aliased = [str(c["spp"]) for c in cells if c["aliasing"] == "aliased"]
-    blue = [str(c["spp"]) for c in cells if c["aliasing"] == "blue"]
-    biased = [str(c["spp"]) for c in cells if c["biased"]]
-    if all(c["aliasing"] == UNMEASURED for c in cells) and not biased:
-        return UNMEASURED
-    verdict = [f"<b>biased</b> at {', '.join(biased)} spp"] if biased else []
-    if aliased:
-        verdict.append(f"aliased at {', '.join(aliased)} spp")
-    if blue:
-        verdict.append(f"blue at {', '.join(blue)} spp")
-    return "; ".join(verdict) or "noise"
-
-
-def summary_header(result: StudyResult) -> list[str]:
-    """Header of :func:`summary_rows` (HTML)."""
-    return (["sampler"] + [html.escape(f.column.heading) for f in FIT_COLUMNS if f.column]
-            + ["fixed ms", "ns / sample"]
-            + [f"eff. ratio @{s} [95%]" for s in result.config.spp] + ["verdict"])
-
-
-def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
-    """Per sampler: slopes and efficiency at every spp (HTML cells)."""
-    rows = []
-    for sampler in result.config.samplers:
-        fit = result.fit(scene, sampler.label)
-        cells = [c for c in result.cells if c["scene"] == scene and c["sampler"] == sampler.label]
-        by_spp = {c["spp_requested"]: c for c in cells}
-        rows.append([html.escape(sampler.label)]
-                    + [_show(f, fit) for f in FIT_COLUMNS]
-                    + [_fmt(1e3 * fit["fixed_seconds"]), _fmt(1e9 * fit["seconds_per_sample"])]
-                    + [_ratio_cell(by_spp[spp]) if spp in by_spp else "pending"
-                       for spp in result.config.spp]
-                    + [_verdicts(cells)])
-    return rows
-
-
-def _ratio_cell(cell: dict[str, Any]) -> str:
-    """An efficiency ratio with its interval; 'n.s.' when the interval holds 1."""
-    if not cell["resolved"]:
-        return "unresolved"
-    value, low, high = (cell[k] for k in ("efficiency_ratio", "efficiency_ratio_low",
-                                          "efficiency_ratio_high"))
-    text = f"{_fmt(value)} [{_fmt(low)}, {_fmt(high)}]"
-    if math.isfinite(low) and low <= 1.0 <= high and low < high:
-        text += " <i>n.s.</i>"
-    return text
-
-
-def cell_header() -> list[str]:
-    """Header of :func:`cell_rows` (HTML)."""
-    return [html.escape(f.column.heading) for f in CELL_COLUMNS if f.column]
-
-
-def cell_rows(result: StudyResult) -> list[list[str]]:
-    """The table of cells (HTML cells): every measured cell, then the pending ones."""
-    rows = [[_show(f, c) for f in CELL_COLUMNS] for c in result.cells]
-    stop = result.interrupted or {}
-    blank = [""] * (len(CELL_COLUMNS) - 4)
-    for scene, label, spp in result.pending():  # a partial study: what is missing
-        running = (stop.get("scene"), stop.get("sampler"), stop.get("spp")) == (scene, label, spp)
-        status = (f"interrupted ({stop['seeds_done']}/{stop['seeds_total']} seeds)" if running
-                  else "pending")
-        rows.append([html.escape(scene), html.escape(label), f"({spp})", status, *blank])
-    return rows
-
-
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em;
 color:#222;max-width:1400px}
@@ -393,7 +273,7 @@ def _html_convergence(result: StudyResult, files: dict[str, Path]) -> list[str]:
              "error apart from zero; it is left out of the fits.</p>"]
     for scene in result.scenes:
         parts.append(f"<h3>{html.escape(scene)}</h3>")
-        parts.append(_table(summary_header(result), summary_rows(result, scene)))
+        parts.append(table(summary_header(result), summary_rows(result, scene)))
     for key, alt in (("error_vs_spp", "error vs spp"), ("error_vs_time", "error vs time")):
         if key in files:
             parts.append(f"<p><img alt='{alt}' src='{_png_data(files[key])}'></p>")
@@ -424,11 +304,11 @@ def _html_images(result: StudyResult, files: dict[str, Path], links: Links) -> l
 
 def _html_references(result: StudyResult) -> list[str]:
     rows = [[html.escape(r.scene), f"{r.width}x{r.height}", str(r.spp), html.escape(r.sampler),
-             _fmt(r.seconds) + (" (cached)" if r.cached else ""), _fmt(r.noise_floor),
-             _fmt(r.rel_noise_floor)]
+             fmt(r.seconds) + (" (cached)" if r.cached else ""), fmt(r.noise_floor),
+             fmt(r.rel_noise_floor)]
             for r in result.references.values()]
     return [_h2("references"),
-            _table(["scene", "pixels", "spp", "sampler", "seconds", "MSE floor",
+            table(["scene", "pixels", "spp", "sampler", "seconds", "MSE floor",
                     "relMSE floor"], rows)]
 
 
@@ -437,7 +317,7 @@ def _html_cells(result: StudyResult) -> list[str]:
             "deviation. Unresolved cells (MSE below "
             f"{RESOLVED_FACTOR:g}&times; the reference's noise floor) are marked "
             "and excluded from fits.</p>",
-            _table(cell_header(), cell_rows(result), cls="cells")]
+            table(cell_header(), cell_rows(result), cls="cells")]
 
 
 def _html_definitions() -> list[str]:

@@ -22,9 +22,7 @@ benchmarks) times the same way, after pyperf and hyperfine:
 4. **Robust summary** (:class:`TimingSummary`): the median; 1.4826 x the
    median absolute deviation as the spread; outliers (more than
    :data:`OUTLIER_Z` robust sd and :data:`OUTLIER_MIN` of the median from it);
-   the standard error of the log of the median, ``sqrt(pi / 2) x sd(log t) /
-   sqrt(n)`` (the median's asymptotic efficiency; the plain sd keeps it honest when there are
-   outliers); and a stability verdict: *unstable* when the relative spread
+   and a stability verdict: *unstable* when the relative spread
    exceeds :data:`SPREAD_LIMIT`, *loaded* when other processes were runnable at
    the start of more than :data:`LOADED_SHARE` of the runs, and doubtful too
    when more than a quarter of the runs are outliers (the median absorbs a few).
@@ -42,7 +40,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
@@ -58,20 +56,16 @@ OUTLIER_Z = 3.5
 OUTLIER_MIN = 0.05
 #: A case is loaded when other processes were runnable at more than this share of its runs.
 LOADED_SHARE = 0.25
-#: The median's standard error relative to the mean's under normality, sqrt(pi / 2).
-MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2.0)
 
 
 @dataclass(frozen=True)
 class Sample:
-    """One timed run: wall and process CPU seconds, other runnable processes at its start."""
+    """One timed run: wall and process CPU seconds, and the threads of other processes
+    runnable at both its start and its end (None where unknown)."""
 
     wall: float
     cpu: float
     others: int | None = None
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def _own_running() -> int:
@@ -170,7 +164,6 @@ class TimingSummary:
     median: float
     spread: float                 # 1.4826 x MAD (s)
     minimum: float
-    se_log: float                 # standard error of log(median)
     cpu_median: float
     outliers: int
     loaded: int                   # runs that started with other processes runnable
@@ -205,10 +198,6 @@ class TimingSummary:
             out.append(f"other processes running at {self.loaded} of {self.n} runs")
         return out
 
-    def as_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "relative_spread": self.relative_spread,
-                "stable": self.stable}
-
 
 def summarise(samples: Sequence[Sample]) -> TimingSummary:
     """The robust summary of a case's timed runs (NaN fields when there are none)."""
@@ -217,18 +206,16 @@ def summarise(samples: Sequence[Sample]) -> TimingSummary:
     n = int(wall.size)
     if n == 0:
         nan = math.nan
-        return TimingSummary(0, nan, nan, nan, nan, nan, 0, 0, unstable=True)
+        return TimingSummary(0, nan, nan, nan, nan, 0, 0, unstable=True)
     median = float(np.median(wall))
     spread = float(1.4826 * np.median(np.abs(wall - median))) if n > 1 else math.nan
-    logs = np.log(wall)
-    se_log = float(MEDIAN_SE_FACTOR * logs.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
     outliers = int(np.count_nonzero(np.abs(wall - median)
                                     > max(OUTLIER_Z * spread, OUTLIER_MIN * median))) \
         if n > 2 else 0
     cpu = float(np.median([s.cpu for s in samples]))
     loaded = sum(1 for s in samples if s.others)
     unstable = bool(n > 1 and spread / median > SPREAD_LIMIT)
-    return TimingSummary(n, median, spread, float(wall.min()), se_log, cpu, outliers, loaded,
+    return TimingSummary(n, median, spread, float(wall.min()), cpu, outliers, loaded,
                          unstable=unstable)
 
 
@@ -242,9 +229,6 @@ class CostFit:
     per_unit_se: float
     n: int
     r2: float
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def fit_cost(units: Sequence[float], seconds: Sequence[float]) -> CostFit:

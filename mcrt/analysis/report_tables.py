@@ -1,0 +1,142 @@
+"""The HTML tables of a study's report: the summary per scene and the table of cells.
+
+Every column derives from the declaration of the fields
+(:mod:`mcrt.analysis.study.fields`): a :class:`~mcrt.analysis.study.fields.Column`
+says how its value is shown (text, a value with its sd, se or interval, a z).
+:mod:`mcrt.analysis.report` puts the tables in the page.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+from typing import Any
+
+import numpy as np
+
+from .aliasing import UNMEASURED
+from .study import StudyResult
+from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Field
+
+
+def fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        if not math.isfinite(value):
+            return "&ndash;"
+        if value == 0:
+            return "0"
+        if 1e-3 <= abs(value) < 1e4:
+            return f"{value:.{digits}g}"
+        return f"{value:.{digits - 1}e}"
+    return html.escape(str(value))
+
+
+def _show(field: Field, record: dict[str, Any]) -> str:
+    """The HTML of ``field``'s column in a table row of ``record`` (a cell or a
+    fit), as its :class:`~mcrt.analysis.study.fields.Column` says."""
+    assert field.column is not None
+    show, scale = field.column.show, field.column.scale
+    name = field.name
+
+    def value(key: str = name) -> Any:
+        v = record[key]
+        return v * scale if scale != 1 else v
+
+    if show == "text":
+        return html.escape(str(record[name]))
+    if show == "count":
+        return str(record[name])
+    if show == "flag":
+        return "" if record[name] else html.escape(field.column.false)
+    if show in ("sd", "se"):
+        return f"{fmt(value())} &plusmn; {fmt(value(f'{name}_{show}'), 2)}"
+    if show == "interval":
+        return f"{fmt(value())} [{fmt(value(f'{name}_low'))}, {fmt(value(f'{name}_high'))}]"
+    if show == "z":
+        return f"{fmt(value())} ({fmt(record[f'{name}_z'], 2)})"
+    return fmt(value())
+
+
+def table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
+    cls = f"sortable {cls}".strip()
+    head = "".join(f"<th>{h}</th>" for h in header)
+    body = "\n".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table>'
+
+
+def _verdicts(cells: list[dict[str, Any]]) -> str:
+    """The verdicts of a sampler's cells in words (aliasing, bias)."""
+    aliased = [str(c["spp"]) for c in cells if c["aliasing"] == "aliased"]
+    blue = [str(c["spp"]) for c in cells if c["aliasing"] == "blue"]
+    biased = [str(c["spp"]) for c in cells if c["biased"]]
+    if all(c["aliasing"] == UNMEASURED for c in cells) and not biased:
+        return UNMEASURED
+    verdict = [f"<b>biased</b> at {', '.join(biased)} spp"] if biased else []
+    if aliased:
+        verdict.append(f"aliased at {', '.join(aliased)} spp")
+    if blue:
+        verdict.append(f"blue at {', '.join(blue)} spp")
+    return "; ".join(verdict) or "noise"
+
+
+def summary_header(result: StudyResult) -> list[str]:
+    """Header of :func:`summary_rows` (HTML)."""
+    return (["sampler"] + [html.escape(f.column.heading) for f in FIT_COLUMNS if f.column]
+            + ["fixed ms", "ns / sample"]
+            + [f"eff. ratio @{s} [95%]" for s in result.config.spp] + ["verdict"])
+
+
+def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
+    """Per sampler: slopes and efficiency at every spp (HTML cells)."""
+    rows = []
+    for sampler in result.config.samplers:
+        fit = result.fit(scene, sampler.label)
+        cells = [c for c in result.cells if c["scene"] == scene and c["sampler"] == sampler.label]
+        by_spp = {c["spp_requested"]: c for c in cells}
+        rows.append([html.escape(sampler.label)]
+                    + [_show(f, fit) for f in FIT_COLUMNS]
+                    + [fmt(1e3 * fit["fixed_seconds"]), fmt(1e9 * fit["seconds_per_sample"])]
+                    + [_ratio_cell(by_spp[spp]) if spp in by_spp else "pending"
+                       for spp in result.config.spp]
+                    + [_verdicts(cells)])
+    return rows
+
+
+def _ratio_cell(cell: dict[str, Any]) -> str:
+    """An efficiency ratio with its interval; 'n.s.' when the interval holds 1."""
+    if not cell["resolved"]:
+        return "unresolved"
+    value, low, high = (cell[k] for k in ("efficiency_ratio", "efficiency_ratio_low",
+                                          "efficiency_ratio_high"))
+    text = f"{fmt(value)} [{fmt(low)}, {fmt(high)}]"
+    if math.isfinite(low) and low <= 1.0 <= high and low < high:
+        text += " <i>n.s.</i>"
+    return text
+
+
+def cell_header() -> list[str]:
+    """Header of :func:`cell_rows` (HTML)."""
+    return [html.escape(f.column.heading) for f in CELL_COLUMNS if f.column]
+
+
+def cell_rows(result: StudyResult) -> list[list[str]]:
+    """The table of cells (HTML cells): every measured cell, then the pending ones."""
+    rows = [[_show(f, c) for f in CELL_COLUMNS] for c in result.cells]
+    stop = result.interrupted or {}
+    blank = [""] * (len(CELL_COLUMNS) - 4)
+    for scene, label, spp in result.pending():  # a partial study: what is missing
+        running = (stop.get("scene"), stop.get("sampler"), stop.get("spp")) == (scene, label, spp)
+        status = (f"interrupted ({stop['seeds_done']}/{stop['seeds_total']} seeds)" if running
+                  else "pending")
+        rows.append([html.escape(scene), html.escape(label), f"({spp})", status, *blank])
+    return rows
+
+
+__all__ = ["cell_header", "cell_rows", "fmt", "summary_header", "summary_rows", "table"]
