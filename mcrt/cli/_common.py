@@ -152,3 +152,10 @@ def cluster_executor(option: str | None) -> Iterator[Any]:
         yield executor
     finally:
         executor.close()
+
+
+def sampler_choices() -> str:
+    """The sampler names for a ``--help`` text (registered ones, plugins' included)."""
+    from ..samplers import standalone_names
+
+    return f"{', '.join(standalone_names())}, or one a --plugin registers"

@@ -15,11 +15,17 @@ from ..analysis import patterns
 from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..errors import McrtError
-from ..samplers import ALL_SAMPLERS, BUILTIN_SAMPLERS
+from ..samplers import BUILTIN_SAMPLERS
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets
 from ..samplers.poisson_tables import MAX_POINTS
 from . import SUMMARIES, _common
-from ._common import ensure_writable_dir, examples, non_negative_int, positive_int
+from ._common import (
+    ensure_writable_dir,
+    examples,
+    non_negative_int,
+    positive_int,
+    sampler_choices,
+)
 
 log = logging.getLogger("mcrt.pattern")
 
@@ -53,7 +59,7 @@ def add_parser(commands) -> None:
         epilog=examples("mcrt pattern poisson_disk --spp 256",
                         "mcrt pattern jittered --param jitter=0.5 -o out/pattern_half_jitter",
                         "mcrt pattern sobol --spp 64 --dimension 2"))
-    p.add_argument("sampler", metavar="NAME", help=f"sampler: one of {', '.join(ALL_SAMPLERS)}")
+    p.add_argument("sampler", metavar="NAME", help=f"sampler: one of {sampler_choices()}")
     p.add_argument("--spp", type=positive_int, default=256, metavar="N",
                    help="samples per pixel (default 256; samplers may round it)")
     p.add_argument("--pixels", type=positive_int, default=256, metavar="K",

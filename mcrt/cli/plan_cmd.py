@@ -8,9 +8,8 @@ import json
 from ..core.sampling import check_sampler_name, make_sampler
 from ..render.plan import EFFECTS, parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
-from ..samplers import ALL_SAMPLERS
 from . import SUMMARIES
-from ._common import examples, non_negative_int, positive_int
+from ._common import examples, non_negative_int, positive_int, sampler_choices
 
 
 def add_effect_argument(parser: argparse.ArgumentParser) -> None:
@@ -33,7 +32,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     add_effect_argument(p)
     p.add_argument("--sampler", metavar="NAME",
-                   help=f"sampler (default: the scene's); one of {', '.join(ALL_SAMPLERS)}")
+                   help=f"sampler (default: the scene's); one of {sampler_choices()}")
     p.add_argument("--spp", type=positive_int, metavar="N",
                    help="samples per pixel (default: the scene's); sets the sub-frame count")
     p.add_argument("--seed", type=non_negative_int, default=0, metavar="S",

@@ -19,7 +19,6 @@ from ..core.sampling import check_sampler_name
 from ..errors import McrtError
 from ..io import write_exr
 from ..render.scene import check_scene_file, parse_defines
-from ..samplers import ALL_SAMPLERS
 from . import SUMMARIES, _common
 from ._common import (
     check_output_files,
@@ -28,6 +27,7 @@ from ._common import (
     note_first_run,
     output_stem,
     positive_int,
+    sampler_choices,
 )
 
 
@@ -47,7 +47,7 @@ def add_parser(commands) -> None:
     p.add_argument("--spp", type=positive_int, default=DEFAULT_REFERENCE_SPP, metavar="N",
                    help=f"total samples per pixel (default {DEFAULT_REFERENCE_SPP})")
     p.add_argument("--sampler", default="independent", metavar="NAME",
-                   help=f"sampler plugin (default independent); one of {', '.join(ALL_SAMPLERS)}")
+                   help=f"sampler plugin (default independent); one of {sampler_choices()}")
     p.add_argument("--seed", type=non_negative_int, default=0, metavar="S",
                    help="seed; pass i uses a seed hashed from (S, i) (default 0)")
     p.add_argument("--spp-per-pass", type=positive_int, metavar="N",

@@ -35,7 +35,7 @@ from ..io.parallel import write_all
 from ..render import adaptive
 from ..render.plan import parse_effect_overrides, plan_scene
 from ..render.scene import parse_defines
-from ..samplers import ALL_SAMPLERS, PLUGINS
+from ..samplers import names
 from ..samplers.base import is_mcrt_sampler
 from . import SUMMARIES, _adaptive_args, _common
 from ._common import (
@@ -46,6 +46,7 @@ from ._common import (
     note_first_run,
     output_stem,
     positive_int,
+    sampler_choices,
 )
 from .plan_cmd import add_effect_argument
 
@@ -63,7 +64,7 @@ def add_parser(commands) -> None:
                         "mcrt render scenes/edges.xml --adaptive --threshold 0.05"))
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     p.add_argument("--sampler", metavar="NAME",
-                   help=f"sampler plugin (default: the scene's); one of {', '.join(ALL_SAMPLERS)}")
+                   help=f"sampler plugin (default: the scene's); one of {sampler_choices()}")
     p.add_argument("-P", "--sampler-param", dest="sampler_params", action="append",
                    metavar="KEY=VALUE",
                    help="a parameter of the --sampler plugin (e.g. -P jitter=0.5); repeatable")
@@ -185,7 +186,7 @@ def _render_cluster(args: argparse.Namespace, sampler, adaptive: bool) -> str | 
            None if is_mcrt_sampler(sampler) or reseeds_each_pass(sampler) else
            f"{sampler_name(sampler)} carries its random state from pass to pass, which a "
            f"worker cannot recreate; use one of mcrt's samplers "
-           f"({', '.join(PLUGINS)}) or independent")
+           f"({', '.join(names('mcrt'))}) or independent")
     if why is None:
         return address
     if args.cluster is not None:

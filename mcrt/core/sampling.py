@@ -22,7 +22,7 @@ from typing import Any
 import mitsuba as mi
 
 from ..errors import SamplerError
-from ..samplers import ALL_SAMPLERS
+from ..samplers.registry import names
 
 
 def mitsuba_message(error: BaseException) -> str:
@@ -43,9 +43,10 @@ def mitsuba_message(error: BaseException) -> str:
 
 def check_sampler_name(name: str) -> str:
     """Return ``name`` if mcrt can render with that sampler, else raise."""
-    if name not in ALL_SAMPLERS:
-        raise SamplerError(f"unknown sampler {name!r}{did_you_mean(name, ALL_SAMPLERS)}; "
-                           f"choose one of: {', '.join(ALL_SAMPLERS)}")
+    known = names()
+    if name not in known:
+        raise SamplerError(f"unknown sampler {name!r}{did_you_mean(name, known)}; "
+                           f"choose one of: {', '.join(known)} (or load yours with --plugin)")
     return name
 
 

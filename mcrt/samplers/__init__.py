@@ -9,71 +9,92 @@
 ``sobol``          progressive, padded, Owen-scrambled Sobol' (0,2)-sequences
 ``zsobol``         Morton-ordered, digit-permuted Sobol': blue-noise error over
                    the screen (needs the film ``width``)
+``pointset``       a user's point sets from a file (``filename``), randomised
+                   per pixel and dimension
 =================  ===========================================================
 
-``register()`` makes them available to ``mi.load_dict`` / ``mi.load_file`` for
-the active variant (``import mcrt`` does it once).
+Every sampler name, ours, Mitsuba's and users', lives in one registry
+(:mod:`.registry`); ``register()`` makes them available to ``mi.load_dict`` /
+``mi.load_file`` for the active variant (``import mcrt`` does it once).
+:func:`register_sampler` brings a user's sampler in.
 """
 
 from __future__ import annotations
 
-import importlib
+from typing import Any
 
-import mitsuba as mi
-
-from . import base, jittered, poisson_disk, sobol, zsobol
+from ..errors import SamplerError
+from . import registry
 from .base import McrtSampler
-from .jittered import JitteredSampler, UniformGridSampler
-from .poisson_disk import PoissonDiskSampler
-from .sobol import SobolSampler
-from .zsobol import ZSobolSampler
-
-#: Variant whose ``mi.Sampler`` the plugin classes currently derive from.
-_classes_variant = mi.variant()
-
-#: mcrt's sampler plugins by Mitsuba plugin name.
-PLUGINS: dict[str, type[McrtSampler]] = {
-    cls.plugin_name: cls for cls in (UniformGridSampler, JitteredSampler, PoissonDiskSampler,
-                                     SobolSampler, ZSobolSampler)
-}
+from .registry import names
 
 #: Mitsuba's built-in samplers that mcrt compares against.
-BUILTIN_SAMPLERS: tuple[str, ...] = ("independent", "stratified", "multijitter", "orthogonal",
-                                     "ldsampler")
+BUILTIN_SAMPLERS: tuple[str, ...] = tuple(registry.MITSUBA_SAMPLERS)
 
-#: Every sampler name the command-line tools accept.
-ALL_SAMPLERS: tuple[str, ...] = tuple(PLUGINS) + BUILTIN_SAMPLERS
-
-
-def _redefine_classes() -> None:
-    """Re-import the plugin modules so their classes derive from the active
-    variant's ``mi.Sampler`` (a Python class cannot change its C++ base)."""
-    global _classes_variant, McrtSampler, JitteredSampler, UniformGridSampler, PoissonDiskSampler
-    global SobolSampler, ZSobolSampler
-    for module in (base, jittered, poisson_disk, sobol, zsobol):
-        importlib.reload(module)
-    # Rebinding a class name is what this function is for; mypy forbids it in general.
-    McrtSampler = base.McrtSampler  # type: ignore[misc]
-    JitteredSampler = jittered.JitteredSampler  # type: ignore[misc]
-    UniformGridSampler = jittered.UniformGridSampler  # type: ignore[misc]
-    PoissonDiskSampler = poisson_disk.PoissonDiskSampler  # type: ignore[misc]
-    SobolSampler = sobol.SobolSampler  # type: ignore[misc]
-    ZSobolSampler = zsobol.ZSobolSampler  # type: ignore[misc]
-    PLUGINS.clear()
-    PLUGINS.update({cls.plugin_name: cls
-                    for cls in (UniformGridSampler, JitteredSampler, PoissonDiskSampler,
-                                SobolSampler, ZSobolSampler)})
-    _classes_variant = mi.variant()
+#: Class names this package exports, by module (the classes are re-created
+#: after a variant switch, so they are looked up when asked for).
+_CLASS_MODULES = {"JitteredSampler": "jittered", "UniformGridSampler": "jittered",
+                  "PoissonDiskSampler": "poisson_disk", "SobolSampler": "sobol",
+                  "ZSobolSampler": "zsobol", "PointSetSampler": "pointset"}
 
 
 def register() -> None:
-    """Register mcrt's sampler plugins with the active Mitsuba variant."""
-    if mi.variant() != _classes_variant:
-        _redefine_classes()
-    for name, cls in PLUGINS.items():
-        mi.register_sampler(name, lambda props, cls=cls: cls(props))
+    """Register every sampler of the registry with the active Mitsuba variant."""
+    registry.register_with_mitsuba()
 
 
-__all__ = ["ALL_SAMPLERS", "BUILTIN_SAMPLERS", "PLUGINS", "JitteredSampler", "McrtSampler",
-           "PoissonDiskSampler", "SobolSampler", "UniformGridSampler", "ZSobolSampler",
-           "register"]
+def standalone_names() -> tuple[str, ...]:
+    """The registered samplers that need no parameters (all but ``pointset``)."""
+    return tuple(n for n in names() if n != "pointset")
+
+
+def __getattr__(name: str) -> Any:
+    if name == "PLUGINS":  # mcrt's plugin classes by name, for the active variant
+        return {n: registry.current_class(n) for n in names("mcrt")}
+    if name == "ALL_SAMPLERS":  # every name that renders without parameters
+        return standalone_names()
+    if name in _CLASS_MODULES:
+        import importlib
+
+        return getattr(importlib.import_module(f"{__name__}.{_CLASS_MODULES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def register_sampler(name: str, sampler: type | None = None, *, points=None,
+                     file: str | None = None, sets: int | None = None, seed: int = 0,
+                     randomize: str = "symmetry_shift", claims=(), origin: str = "") -> str:
+    """Bring a sampler into mcrt under ``name``; returns the name.
+
+    Exactly one of:
+
+    * ``sampler``: a ``mi.Sampler`` subclass (usually of :class:`McrtSampler`);
+    * ``points``: a function ``fn(count, n, rng)`` returning ``count`` sets of
+      ``n`` points in [0, 1)^2 as a numpy array ``(count, n, 2)``; mcrt asks
+      for ``sets`` sets (default 256) per sample count, caches them, and serves
+      them as the ``pointset`` plugin does;
+    * ``file``: a point-set file, as the ``pointset`` plugin's ``filename``.
+
+    ``randomize`` chooses the ``pointset`` randomisation, ``claims`` what the
+    points promise (keys of :data:`registry.CLAIMS`, checked by ``mcrt check``).
+
+    Example::
+
+        >>> import mcrt, numpy as np
+        >>> mcrt.register_sampler("iid", points=lambda count, n, rng: rng.random((count, n, 2)))
+        'iid'
+    """
+    from .user_points import points_class
+
+    given = [x is not None for x in (sampler, points, file)]
+    if sum(given) != 1:
+        raise SamplerError("register_sampler: give exactly one of sampler=, points= "
+                                    "or file=")
+    if sampler is not None:
+        return registry.register_class(sampler, name, origin=origin)
+    return points_class(name, points=points, file=file, sets=sets, seed=seed,
+                        randomize=randomize, claims=frozenset(claims), origin=origin)
+
+
+__all__ = ["ALL_SAMPLERS", "BUILTIN_SAMPLERS", "PLUGINS", "McrtSampler", "names",
+           "register", "register_sampler", "registry", "standalone_names",
+           *_CLASS_MODULES]

@@ -54,6 +54,11 @@ class McrtSampler(mi.Sampler):
     #: (one sequence per pixel): renderers that trace a pixel in batches then continue
     #: the sequence where the last batch stopped (adaptive sampling).
     progressive: ClassVar[bool] = False
+    #: Properties of the points this sampler promises (keys of
+    #: :data:`mcrt.samplers.registry.CLAIMS`); ``mcrt check`` verifies them.
+    claims: ClassVar[frozenset[str]] = frozenset()
+    #: One line on what the sampler does (tables of samplers, ``mcrt check``).
+    summary: ClassVar[str] = ""
     #: The C++ class whose base implementations ``_run_base`` calls.
     _cpp_base: ClassVar[type] = mi.Sampler
 
@@ -79,6 +84,12 @@ class McrtSampler(mi.Sampler):
 
     def _configure(self, props: mi.Properties) -> None:
         """Read plugin-specific parameters (override)."""
+
+    @staticmethod
+    def example_params(spp: int) -> dict:
+        """Parameters the plugin needs outside a render, for ``spp`` samples
+        (override; e.g. ``zsobol``'s film width). Used by ``mcrt check`` and tests."""
+        return {}
 
     def _parameters(self) -> dict:
         """Plugin-specific parameters, as given to ``mi.load_dict`` (override)."""

@@ -64,6 +64,8 @@ class JitteredSampler(McrtSampler):
     """
 
     plugin_name = "jittered"
+    summary = "jittered k x k strata with a jitter amount in [0, 1]"
+    claims = frozenset({"stratified"})
 
     def _configure(self, props: mi.Properties) -> None:
         jitter = props.get("jitter", 1.0)
@@ -131,6 +133,7 @@ class UniformGridSampler(JitteredSampler):
     """
 
     plugin_name = "uniform_grid"
+    summary = "regular k x k grid: cell centres on the film, shifted lattices elsewhere"
 
     def _configure(self, props: mi.Properties) -> None:
         self.jitter = 0.0
@@ -174,3 +177,6 @@ def grid_2d(dim_key: mi.UInt32, sample: mi.UInt32, k: int, film: mi.Bool,
     tx = dr.select(film, epoch_offset(epoch, R2_X_U32), unit_float(h))
     ty = dr.select(film, epoch_offset(epoch, R2_Y_U32), unit_float(mix32(h)))
     return mi.Point2f(place_in_stratum(col, k, tx), place_in_stratum(row, k, ty))
+
+
+PLUGINS = (UniformGridSampler, JitteredSampler)

@@ -48,6 +48,8 @@ class SobolSampler(McrtSampler):
     """
 
     plugin_name = "sobol"
+    summary = "progressive, padded, Owen-scrambled Sobol' (0,2)-sequences"
+    claims = frozenset({"net"})
     progressive = True
 
     def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
@@ -55,3 +57,6 @@ class SobolSampler(McrtSampler):
 
     def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Point2f:
         return padded_sobol_2d(sample, key)
+
+
+PLUGINS = (SobolSampler,)

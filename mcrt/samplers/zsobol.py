@@ -149,11 +149,17 @@ class ZSobolSampler(McrtSampler):
     """
 
     plugin_name = "zsobol"
+    summary = "Morton-ordered, digit-permuted Sobol': blue-noise error over the screen"
+    claims = frozenset({"net"})
 
     def _configure(self, props: mi.Properties) -> None:
         self.width = 0
         if "width" in props:
             self.set_film_width(props["width"])
+
+    @staticmethod
+    def example_params(spp: int) -> dict:
+        return {"width": 8}
 
     def _parameters(self) -> dict:
         return {"width": self.width} if self.width else {}
@@ -220,3 +226,6 @@ class ZSobolSampler(McrtSampler):
 
     def _sample_2d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Point2f:
         return scrambled_sobol_2d(sample, key)
+
+
+PLUGINS = (ZSobolSampler,)

@@ -1,0 +1,214 @@
+"""The one registry of samplers: mcrt's, Mitsuba's and any user's.
+
+Every name a command, a study or the Python API accepts is a name here, and
+every table of samplers (``mcrt --help``, docs, the contract tests) is derived
+from it. A sampler is one of four kinds:
+
+``mcrt``     a plugin shipped in this package (one module per sampler family,
+             listed once in :data:`SHIPPED_MODULES`)
+``mitsuba``  one of Mitsuba's built-in samplers that mcrt compares against
+``user``     a user's ``mi.Sampler`` subclass (usually a :class:`McrtSampler`),
+             registered with :func:`register_class`
+``points``   point sets from a Python generator (:func:`register_points`) or
+             a file (the ``pointset`` plugin), served by :mod:`.pointset`
+
+Each entry states the properties its sampler *claims* (:data:`CLAIMS`), which
+``mcrt check`` verifies. Mitsuba knows a Python plugin only per variant: after
+a variant switch, :func:`register_with_mitsuba` re-creates the shipped classes
+(re-imports their modules), re-runs the registered rebuild hooks (user plugin
+files) and registers every entry again.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import mitsuba as mi
+
+from ..errors import SamplerError
+
+#: What a sampler may claim about its points, and what ``mcrt check`` tests.
+CLAIMS: dict[str, str] = {
+    "stratified": "at square counts N = k^2, one point in each cell of a k x k grid",
+    "latin": "one point in each of the N columns and N rows of an N x N grid",
+    "net": "at powers of two N = 2^m, a (0,m,2)-net in base 2: one point in each "
+           "elementary interval of area 1/N",
+    "min_distance": "toroidal minimum distance >= 0.75 of the hexagonal packing's spacing",
+    "progressive": "sample j of a pixel is the same point whatever the sample count",
+}
+
+#: Modules of this package that define mcrt's sampler plugins (each lists its
+#: classes in ``PLUGINS``), in listing order. A new
+#: shipped sampler is one module plus its line here.
+SHIPPED_MODULES: tuple[str, ...] = ("jittered", "poisson_disk", "sobol", "zsobol", "pointset")
+
+
+@dataclass(frozen=True)
+class SamplerInfo:
+    """One registered sampler.
+
+    ``example`` gives, for a sample count, the plugin parameters the sampler
+    needs outside a render (``zsobol``: a film ``width``; ``pointset``: a file).
+    """
+
+    name: str
+    kind: str
+    summary: str
+    claims: frozenset[str] = frozenset()
+    origin: str = ""
+    example: Callable[[int], dict[str, Any]] | None = field(default=None, compare=False)
+
+    def example_params(self, spp: int) -> dict[str, Any]:
+        """Parameters that let ``mi.load_dict`` build this sampler on its own."""
+        return dict(self.example(spp)) if self.example is not None else {}
+
+
+#: Mitsuba's built-in samplers that mcrt compares against, and what they claim.
+MITSUBA_SAMPLERS: dict[str, tuple[str, frozenset[str]]] = {
+    "independent": ("Mitsuba: independent uniform points", frozenset()),
+    "stratified": ("Mitsuba: jittered k x k strata", frozenset({"stratified"})),
+    "multijitter": ("Mitsuba: correlated multi-jittered (Kensler 2013)",
+                    frozenset({"stratified", "latin"})),
+    "orthogonal": ("Mitsuba: orthogonal-array Latin hypercube", frozenset({"latin"})),
+    "ldsampler": ("Mitsuba: low-discrepancy (Sobol' / van der Corput)", frozenset()),
+}
+
+#: Registered samplers by name, in registration order.
+_ENTRIES: dict[str, SamplerInfo] = {}
+#: The class Mitsuba constructs for each entry that is a Python plugin.
+_CLASSES: dict[str, type] = {}
+#: Functions that re-create user plugins' classes for a newly active variant.
+_REBUILDS: dict[str, Callable[[], None]] = {}
+#: Variant the shipped classes derive from (None: not imported yet).
+_shipped_variant: str | None = None
+
+
+def _first_line(text: str | None) -> str:
+    lines = [line.strip() for line in (text or "").strip().splitlines() if line.strip()]
+    return lines[0] if lines else ""
+
+
+def _summary_of(cls: type) -> str:
+    """A class's ``summary`` attribute, else the first line of its docstring."""
+    return str(getattr(cls, "summary", "") or _first_line(cls.__doc__) or cls.__name__)
+
+
+def claims_of(cls: type) -> frozenset[str]:
+    """What a sampler class claims: its ``claims`` attribute and ``progressive``."""
+    claims = set(getattr(cls, "claims", frozenset()))
+    if getattr(cls, "progressive", False):
+        claims.add("progressive")
+    unknown = claims - set(CLAIMS)
+    if unknown:
+        raise SamplerError(f"{cls.__name__}: unknown claims {sorted(unknown)}; "
+                           f"known: {', '.join(CLAIMS)}")
+    return frozenset(claims)
+
+
+def _check_name(name: str, replace: bool) -> None:
+    if not isinstance(name, str) or not name.isidentifier() or not name.islower():
+        raise SamplerError(f"sampler name {name!r}: use lower-case letters, digits and '_'")
+    taken = _ENTRIES.get(name)
+    if taken is not None and not replace and taken.kind in ("mcrt", "mitsuba"):
+        raise SamplerError(f"sampler name {name!r} is taken by {taken.kind}'s {name}")
+
+
+def _add(info: SamplerInfo, cls: type | None) -> None:
+    _ENTRIES[info.name] = info
+    if cls is not None:
+        _CLASSES[info.name] = cls
+        _register_one(info.name)
+
+
+def _register_one(name: str) -> None:
+    """Tell Mitsuba (active variant) how to build ``name``: the registry's class
+    for it at construction time (so a re-created class takes over at once)."""
+    def construct(props: mi.Properties, name: str = name) -> mi.Sampler:
+        return _CLASSES[name](props)
+    mi.register_sampler(name, construct)
+
+
+def register_class(cls: type, name: str | None = None, *, origin: str = "",
+                   example: Callable[[int], dict[str, Any]] | None = None,
+                   rebuild: Callable[[], None] | None = None, kind: str = "user") -> str:
+    """Register a ``mi.Sampler`` subclass (constructor ``cls(props)``) under ``name``
+    (default: its ``plugin_name``); returns the name.
+
+    ``rebuild`` re-creates and re-registers the class after a variant switch
+    (plugin files pass one; see :mod:`mcrt.plugins`).
+    """
+    if not (isinstance(cls, type) and issubclass(cls, mi.Sampler)):
+        raise SamplerError(f"register_class: {cls!r} is not a subclass of mi.Sampler "
+                           f"(for numpy point sets use mcrt.register_sampler(name, points=...))")
+    name = name or getattr(cls, "plugin_name", "")
+    if not name:
+        raise SamplerError(f"register_class: {cls.__name__} has no plugin_name; pass a name")
+    _check_name(name, replace=kind == "mcrt")
+    if getattr(cls, "plugin_name", name) != name:
+        cls = type(cls.__name__, (cls,), {"plugin_name": name})
+    _add(SamplerInfo(name, kind, _summary_of(cls), claims_of(cls), origin or cls.__module__,
+                     example if example is not None else getattr(cls, "example_params", None)),
+         cls)
+    if rebuild is not None:
+        _REBUILDS[name] = rebuild
+    return name
+
+
+def _shipped_classes() -> list[type]:
+    """mcrt's plugin classes for the active variant (re-imported after a switch)."""
+    global _shipped_variant
+    modules = [importlib.import_module(f"{__package__}.{name}") for name in SHIPPED_MODULES]
+    if _shipped_variant is not None and _shipped_variant != mi.variant():
+        base = importlib.import_module(f"{__package__}.base")
+        importlib.reload(base)
+        modules = [importlib.reload(module) for module in modules]
+    _shipped_variant = mi.variant()
+    return [cls for module in modules for cls in module.PLUGINS]
+
+
+def register_with_mitsuba() -> None:
+    """Register every sampler with the active variant (see the module docstring)."""
+    for cls in _shipped_classes():
+        register_class(cls, origin=f"mcrt.samplers.{cls.__module__.rsplit('.', 1)[-1]}",
+                       kind="mcrt")
+    for name, (summary, claims) in MITSUBA_SAMPLERS.items():
+        _ENTRIES.setdefault(name, SamplerInfo(name, "mitsuba", summary, claims, "mitsuba"))
+    for rebuild in list(dict.fromkeys(_REBUILDS.values())):
+        rebuild()
+    for name in _CLASSES:
+        _register_one(name)
+
+
+def current_class(name: str) -> type:
+    """The Python class Mitsuba builds for ``name`` now (KeyError for Mitsuba's)."""
+    return _CLASSES[name]
+
+
+def names(kind: str | None = None) -> tuple[str, ...]:
+    """Every registered sampler name (of one ``kind``, if given): ours first, then
+    Mitsuba's, then users' in registration order."""
+    order = {"mcrt": 0, "mitsuba": 1, "user": 2, "points": 2}
+    entries = sorted(_ENTRIES.values(), key=lambda e: order.get(e.kind, 3))
+    return tuple(e.name for e in entries if kind is None or e.kind == kind)
+
+
+def info(name: str) -> SamplerInfo:
+    """The entry of ``name``; SamplerError with the known names if there is none."""
+    try:
+        return _ENTRIES[name]
+    except KeyError:
+        raise SamplerError(f"unknown sampler {name!r}; choose one of: "
+                           f"{', '.join(names())}") from None
+
+
+def unregister(name: str) -> None:
+    """Remove a user's sampler (Mitsuba keeps its constructor; it then refuses)."""
+    entry = _ENTRIES.get(name)
+    if entry is None or entry.kind in ("mcrt", "mitsuba"):
+        raise SamplerError(f"unregister: {name!r} is not a user's sampler")
+    del _ENTRIES[name]
+    _CLASSES.pop(name, None)
+    _REBUILDS.pop(name, None)

@@ -1,0 +1,51 @@
+"""Samplers made from a user's point sets: a generator function or a file.
+
+Each becomes a subclass of the active variant's ``PointSetSampler`` with its
+point source fixed; after a variant switch the registry's rebuild hook makes
+the class again from the re-imported ``pointset`` module.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from pathlib import Path
+
+from ..errors import SamplerError
+from . import registry
+
+
+def points_class(name: str, *, points: Callable | None = None, file: str | Path | None = None,
+                 sets: int | None = None, seed: int = 0, randomize: str = "symmetry_shift",
+                 claims: frozenset[str] = frozenset(), origin: str = "") -> str:
+    """Register sampler ``name`` serving ``points`` (a generator) or ``file``."""
+    from . import point_sources, pointset
+
+    if randomize not in pointset.RANDOMIZATIONS:
+        raise SamplerError(f"{name}: randomize must be one of "
+                           f"{', '.join(pointset.RANDOMIZATIONS)}, got {randomize!r}")
+    source: object
+    if points is not None:
+        source = point_sources.GeneratorSource(points, sets or point_sources.DEFAULT_SETS,
+                                               seed, name)
+        what = f"points from {getattr(points, '__name__', 'a generator')}()"
+    else:
+        if sets is not None:
+            raise SamplerError(f"{name}: sets= is for generators; a file holds its own sets")
+        source = point_sources.FileSource(file)  # type: ignore[arg-type]
+        what = f"point sets of {Path(str(file)).name}"
+    summary = f"{what}, {randomize}"
+
+    def make() -> type:
+        module = importlib.import_module(f"{__package__}.pointset")
+        return type(f"PointSet_{name}", (module.PointSetSampler,),
+                    {"plugin_name": name, "source": source, "default_randomize": randomize,
+                     "claims": claims, "summary": summary, "__doc__": summary,
+                     "example_params": staticmethod(lambda spp: {})})
+
+    def rebuild() -> None:
+        registry.register_class(make(), name, origin=origin or "register_sampler",
+                                rebuild=rebuild, kind="points")
+
+    rebuild()
+    return name
