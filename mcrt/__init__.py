@@ -30,6 +30,7 @@ with collection_held_back():  # Mitsuba's and Dr.Jit's imports: ~10^5 new object
     initialise()
     from . import samplers  # noqa: E402  (needs an active variant)
     from .render import distribution  # noqa: E402
+    from .samplers import register_sampler  # noqa: E402
 
 
 def _adaptive_integrator(props: mi.Properties) -> mi.Integrator:
@@ -70,4 +71,4 @@ def register() -> None:
 
 register()
 
-__all__ = ["McrtError", "register", "samplers", "__version__"]
+__all__ = ["McrtError", "register", "register_sampler", "samplers", "__version__"]

@@ -9,25 +9,22 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
-from conftest import OUR_SAMPLERS, small_cornell
+from conftest import OUR_SAMPLERS, sampler_params, small_cornell
 
 from mcrt.core.render import render_film
 from mcrt.errors import SamplerError
-from mcrt.samplers import _layout
+from mcrt.samplers import _layout, registry
 from mcrt.samplers.points import point_sets
 
 GRID_SAMPLERS = ("uniform_grid", "jittered")
 
-#: Every mcrt sampler plugin: the contract below holds for each.
-CONTRACT = (*OUR_SAMPLERS, "sobol", "zsobol")
-
-#: Parameters a plugin needs outside a render (zsobol: the film width, which mcrt
-#: fills in when it renders).
-NEEDS = {"zsobol": {"width": 8}}
+#: Every mcrt sampler plugin (the registry's): the contract below holds for each.
+CONTRACT = OUR_SAMPLERS
 
 
 def load(name: str, spp: int, **params) -> mi.Sampler:
-    return mi.load_dict({"type": name, "sample_count": spp, **NEEDS.get(name, {}), **params})
+    return mi.load_dict({"type": name, "sample_count": spp, **sampler_params(name, spp),
+                         **params})
 
 
 def seeded(name: str, spp: int, lanes: int | None = None, seed: int = 0, **params):
@@ -36,6 +33,12 @@ def seeded(name: str, spp: int, lanes: int | None = None, seed: int = 0, **param
     sampler.set_samples_per_wavefront(sampler.sample_count())
     sampler.seed(seed, lanes or sampler.sample_count())
     return sampler
+
+
+def xml_params(params: dict) -> str:
+    """Plugin parameters as XML elements."""
+    return "".join(f'<{"integer" if isinstance(v, int) else "string"} name="{k}" value="{v}"/>'
+                   for k, v in params.items())
 
 
 def arr2(p) -> np.ndarray:
@@ -64,7 +67,7 @@ def test_names_are_free_in_mitsuba():
 @pytest.mark.parametrize("name", OUR_SAMPLERS)
 def test_loads_from_dict_and_xml(name):
     assert load(name, 16).sample_count() == 16
-    xml = (f'<sampler version="3.0.0" type="{name}">'
+    xml = (f'<sampler version="3.0.0" type="{name}">{xml_params(sampler_params(name, 16))}'
            '<integer name="sample_count" value="16"/><integer name="seed" value="3"/></sampler>')
     sampler = mi.load_string(xml)
     assert isinstance(sampler, mi.Sampler) and sampler.sample_count() == 16
@@ -72,7 +75,7 @@ def test_loads_from_dict_and_xml(name):
 
 @pytest.mark.parametrize("name", CONTRACT)
 def test_renders_in_mi_render_from_an_xml_scene(name):
-    width = '<integer name="width" value="16"/>' if name == "zsobol" else ""  # plain Mitsuba
+    width = xml_params(sampler_params(name, 4))  # plain Mitsuba: what mcrt fills in is given
     xml = f"""<scene version="3.0.0">
         <integrator type="direct"/>
         <sensor type="perspective">
@@ -281,9 +284,10 @@ def test_permutation_pairs_and_dimension_relations_look_random():
 
 @pytest.mark.parametrize("name", CONTRACT)
 def test_same_seed_same_bits_other_seed_other_values(name):
-    a = point_sets(name, range(4), 16, seed=5)
-    b = point_sets(name, range(4), 16, seed=5)
-    c = point_sets(name, range(4), 16, seed=6)
+    params = sampler_params(name, 16)
+    a = point_sets(name, range(4), 16, seed=5, **params)
+    b = point_sets(name, range(4), 16, seed=5, **params)
+    c = point_sets(name, range(4), 16, seed=6, **params)
     assert a.tobytes() == b.tobytes()
     assert not np.array_equal(a, c)
 
@@ -293,7 +297,8 @@ def test_base_seed_parameter_changes_the_pattern(name):
     """The plugin's own `seed` property offsets the render seed."""
     s0, s1 = load(name, 16, seed=0), load(name, 16, seed=1)
     assert not np.array_equal(point_sets(s0, range(2), 16), point_sets(s1, range(2), 16))
-    assert np.array_equal(point_sets(name, range(2), 16), point_sets(s0, range(2), 16))
+    assert np.array_equal(point_sets(name, range(2), 16, **sampler_params(name, 16)),
+                          point_sets(s0, range(2), 16))
 
 
 @pytest.mark.parametrize("name", CONTRACT)
@@ -365,7 +370,7 @@ def test_pixel_major_layout_matches_point_sets(name):
     wave = arr2(sampler.next_2d()).reshape(pixels, spp, 2).astype(np.float32)
     chosen = [0, 7, 39]
     np.testing.assert_array_equal(wave[chosen], point_sets(name, chosen, spp, dimension=1, seed=2,
-                                                           **NEEDS.get(name, {})))
+                                                           **sampler_params(name, spp)))
 
 
 @pytest.mark.parametrize("name", OUR_SAMPLERS)
@@ -383,7 +388,7 @@ def test_advance_continues_the_pattern_across_passes(name):
     v1 = np.concatenate([f[0] for f in first])
     assert (np.bincount((v1 * 1024).astype(int), minlength=1024) == 1).all()
     xy = np.concatenate([f[1] for f in first])
-    if name != "poisson_disk":
+    if registry.info(name).claims & {"stratified", "net"}:  # 2D: 32 x 32 strata
         assert (np.bincount((xy[:, 0] * 32).astype(int) * 32 + (xy[:, 1] * 32).astype(int),
                             minlength=1024) == 1).all()
     later = []

@@ -7,7 +7,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 import pytest
-from conftest import OUR_SAMPLERS
+from conftest import OUR_SAMPLERS, sampler_params
 
 from mcrt.core.render import render_film
 from mcrt.core.sampling import make_sampler
@@ -35,6 +35,6 @@ def test_image_mean_matches_the_reference(scene_and_reference, name):
     correlated dimensions shifts the mean by more (the uniform grid's midpoint
     quadrature bias here is a deterministic +0.7%)."""
     scene, reference = scene_and_reference
-    result = render_film(scene, make_sampler(name, 256), seed=0)
+    result = render_film(scene, make_sampler(name, 256, **sampler_params(name, 256)), seed=0)
     mean = float(result.rgb.mean())
     assert abs(mean / reference - 1) < 0.01, (name, mean, reference)

@@ -62,7 +62,7 @@ def __getattr__(name: str) -> Any:
 
 def register_sampler(name: str, sampler: type | None = None, *, points=None,
                      file: str | None = None, sets: int | None = None, seed: int = 0,
-                     randomize: str = "symmetry_shift", claims=(), origin: str = "") -> str:
+                     randomize: str = "symmetry", claims=(), origin: str = "") -> str:
     """Bring a sampler into mcrt under ``name``; returns the name.
 
     Exactly one of:

@@ -25,25 +25,30 @@ from .base import McrtSampler
 RANDOMIZATIONS: dict[str, str] = {
     "none": "the set as given; unbiased only if each point of the table is uniform "
             "over its sets (random sets); pixels that draw the same set get the same points",
-    "symmetry": "one of the 8 symmetries of the square (swap and mirror the axes): keeps "
-                "k x k strata, (0,m,2)-nets, distances and the spectrum (up to a 90-degree "
-                "turn); unbiased only for random sets",
+    "symmetry": "one of the 8 symmetries of the square (swap and mirror the axes; the "
+                "default): keeps k x k strata, (0,m,2)-nets, distances and the spectrum (up "
+                "to a 90-degree turn); unbiased only for random sets",
     "shift": "a toroidal (Cranley-Patterson) shift: keeps toroidal distances and the "
              "power spectrum; makes every point uniform, so any set renders unbiased; "
              "moves strata and nets off the grid",
     "xor": "a random digital shift (xor of the 24-bit binary fractions): keeps "
            "elementary intervals, so (0,m,2)-nets stay nets; makes every point uniform",
-    "symmetry_shift": "a symmetry, then a toroidal shift (the default, as poisson_disk): "
-                      "keeps toroidal distances and the spectrum up to a turn; unbiased "
-                      "for any set",
+    "symmetry_shift": "a symmetry, then a toroidal shift (as poisson_disk): keeps "
+                      "toroidal distances and the spectrum up to a turn; unbiased for any set",
 }
 #: How 1D dimensions are drawn.
 ONE_D: dict[str, str] = {
     "stratified": "N jittered strata (as jittered), whatever the sets",
     "projection": "the x coordinate of a randomised set (the sets' own 1D projection)",
 }
-#: Fewest sets a table may have when nothing randomises it.
-MIN_SETS_UNRANDOMIZED = 16
+#: Randomisations that leave the sets' own randomness as the only one: each point
+#: is uniform only if the table's sets are random, so they need many sets.
+UNSHIFTED = ("none", "symmetry")
+#: Fewest sets a table may have under an unshifted randomisation.
+MIN_SETS_UNSHIFTED = 16
+#: The default randomisation (it keeps strata and nets; a jittered file renders
+#: with jittered's variance, where a toroidal shift adds ~30% on the Cornell box).
+DEFAULT_RANDOMIZE = "symmetry"
 
 #: Largest float32 below 1.
 ONE_MINUS_EPSILON = float.fromhex("0x1.fffffep-1")
@@ -131,7 +136,8 @@ class PointSetSampler(McrtSampler):
      * - randomize
        - |string|
        - ``none``, ``symmetry``, ``shift``, ``xor`` or ``symmetry_shift`` (see
-         :data:`RANDOMIZATIONS`). (Default: ``symmetry_shift``)
+         :data:`RANDOMIZATIONS`). (Default: ``symmetry``; it needs at least 16
+         random sets, as ``none`` does)
      * - dims1d
        - |string|
        - 1D dimensions: ``stratified`` or ``projection``. (Default: ``stratified``)
@@ -160,7 +166,7 @@ class PointSetSampler(McrtSampler):
     #: None: the ``filename`` property names the source.
     source: ClassVar[object | None] = None
     #: The randomisation used when the scene does not choose one.
-    default_randomize: ClassVar[str] = "symmetry_shift"
+    default_randomize: ClassVar[str] = DEFAULT_RANDOMIZE
 
     def _configure(self, props: mi.Properties) -> None:
         from .point_sources import FileSource
@@ -201,11 +207,12 @@ class PointSetSampler(McrtSampler):
 
     def _sample_count_changed(self, spp: int) -> None:
         _, _, sets = self._table()  # tabulate / read now, not in the middle of a render
-        if self.randomize == "none" and sets < MIN_SETS_UNRANDOMIZED:
+        if self.randomize in UNSHIFTED and sets < MIN_SETS_UNSHIFTED:
             raise SamplerError(
                 f"{self.plugin_name} ({self._source.describe()}): only {sets} set(s) of "  # type: ignore[attr-defined]
-                f"{spp} points with randomize='none': neighbouring pixels would repeat the "
-                f"same points; give at least {MIN_SETS_UNRANDOMIZED} sets or a randomisation")
+                f"{spp} points with randomize={self.randomize!r}: the sets are the only "
+                f"randomness, too little to be unbiased; give at least {MIN_SETS_UNSHIFTED} "
+                f"random sets, or randomize='shift' or 'xor' (one deterministic set)")
 
     def _table(self) -> tuple[mi.Float, mi.Float, int]:
         n = self.sample_count()

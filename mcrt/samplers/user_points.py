@@ -16,7 +16,7 @@ from . import registry
 
 
 def points_class(name: str, *, points: Callable | None = None, file: str | Path | None = None,
-                 sets: int | None = None, seed: int = 0, randomize: str = "symmetry_shift",
+                 sets: int | None = None, seed: int = 0, randomize: str = "symmetry",
                  claims: frozenset[str] = frozenset(), origin: str = "") -> str:
     """Register sampler ``name`` serving ``points`` (a generator) or ``file``."""
     from . import point_sources, pointset
