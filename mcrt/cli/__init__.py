@@ -1,9 +1,12 @@
 """The ``mcrt`` command line: ``mcrt render``, ``mcrt demo``, ...
 
-The global options (``-q``, ``--variant``, ``--version``) are accepted before
-or after the subcommand. User errors (bad arguments, missing or malformed scenes, unknown samplers,
-unwritable outputs) print one line, ``mcrt: error: ...``, and exit with status 2
-before any rendering starts; they never show a traceback.
+The global options (``-q``, ``--variant``, ``--plugin``, ``--version``) are
+accepted before or after the subcommand. Plugins (``--plugin FILE.py``,
+``$MCRT_PLUGINS``, installed packages' entry points, see :mod:`mcrt.plugins`)
+are loaded after the variant is selected and before the command runs. User
+errors (bad arguments, missing or malformed scenes, unknown samplers, broken
+plugins, unwritable outputs) print one line, ``mcrt: error: ...``, and exit with
+status 2 before any rendering starts; they never show a traceback.
 
 Each subcommand lives in its own module (``mcrt.cli.<name>_cmd``, with
 ``add_parser(commands)`` and ``run(args)``). ``mcrt NAME ...`` imports only that
@@ -36,6 +39,7 @@ COMMANDS: dict[str, str] = {
     "reference": "reference_cmd",
     "compare": "compare_cmd",
     "plan": "plan_cmd",
+    "check": "check_cmd",
 }
 
 #: Subcommand -> what it does (``mcrt --help``, the subcommand's own parser, README).
@@ -47,6 +51,7 @@ SUMMARIES: dict[str, str] = {
     "reference": "render a cached, resumable high-spp reference with error bars",
     "compare": "run a sampling study and write an HTML/CSV/JSON report",
     "plan": "show which distribution effects a scene gets and how they are sampled",
+    "check": "test a sampler: contract, claimed properties, bias, MSE rate, spectrum",
 }
 
 #: Options of ``mcrt`` itself (before the subcommand) that take no value.
@@ -54,6 +59,12 @@ _TOP_LEVEL_FLAGS = ("-q", "--quiet")
 
 #: The option choosing Mitsuba's variant (it takes a value).
 _VARIANT = "--variant"
+
+#: The option loading a user's sampler plugin (it takes a value; repeatable).
+_PLUGIN = "--plugin"
+
+#: Options of ``mcrt`` itself that take a value.
+_VALUE_OPTIONS = (_VARIANT, _PLUGIN)
 
 #: What ``mcrt --help`` says mcrt is, and its examples.
 DESCRIPTION = "mcrt: a distribution ray tracer for studying sampling, built on Mitsuba 3."
@@ -108,8 +119,9 @@ def version_text() -> str:
 
 
 def _add_global_options(parser: argparse.ArgumentParser, after_command: bool) -> None:
-    """``-q``, ``--variant`` and ``--version`` on ``mcrt`` itself and (``after_command``)
-    on each subcommand, where they must not replace a value given before it."""
+    """``-q``, ``--variant``, ``--plugin`` and ``--version`` on ``mcrt`` itself and
+    (``after_command``) on each subcommand, where they must not replace a value
+    given before it (``--plugin`` after the command adds to those before it)."""
     group = parser.add_argument_group("global options") if after_command else parser
     unset: Any = argparse.SUPPRESS  # after the command: no value unless given there
     group.add_argument(*_TOP_LEVEL_FLAGS, action="store_true",
@@ -118,6 +130,12 @@ def _add_global_options(parser: argparse.ArgumentParser, after_command: bool) ->
     group.add_argument(_VARIANT, metavar="NAME", default=unset if after_command else None,
                        help="Mitsuba variant to render with (default llvm_ad_rgb; also "
                             "llvm_ad_spectral, llvm_ad_mono, cuda_ad_* where a GPU exists)")
+    group.add_argument(_PLUGIN, metavar="FILE.py", action="append",
+                       dest="plugins_after" if after_command else "plugins",
+                       default=unset if after_command else None,
+                       help="load a Python file that registers samplers "
+                            "(mcrt.register_sampler), before the command runs; repeatable "
+                            "(also $MCRT_PLUGINS, paths separated by the OS path separator)")
     group.add_argument("--version", action="version", version=version_text(),
                        help="print the versions of mcrt, Mitsuba and Dr.Jit and exit")
 
@@ -147,7 +165,8 @@ def build_parser(commands: Iterable[str] | None = None,
 
 def command_of(argv: Sequence[str]) -> str | None:
     """The subcommand ``argv`` runs, if that is clear without parsing: the first
-    argument other than ``-q``/``--quiet``, when it names a subcommand.
+    argument other than ``-q``/``--quiet``, ``--variant NAME`` and ``--plugin
+    FILE``, when it names a subcommand.
 
     None otherwise (``--help``, an abbreviated option, a typo, nothing): then the
     full parser decides, and reports.
@@ -156,9 +175,10 @@ def command_of(argv: Sequence[str]) -> str | None:
     for arg in argv:
         if skip:
             skip = False
-        elif arg == _VARIANT:
+        elif arg in _VALUE_OPTIONS:
             skip = True
-        elif arg not in _TOP_LEVEL_FLAGS and not arg.startswith(_VARIANT + "="):
+        elif arg not in _TOP_LEVEL_FLAGS and not arg.startswith(
+                tuple(option + "=" for option in _VALUE_OPTIONS)):
             return arg if arg in COMMANDS else None
     return None
 
@@ -175,6 +195,20 @@ def _use_variant(name: str | None) -> None:
     if mi.variant() != name:
         select_variant(name)
         register()
+
+
+def _load_plugins(args: argparse.Namespace) -> None:
+    """Load the installed packages' samplers, ``$MCRT_PLUGINS`` and every
+    ``--plugin`` (before the command, after the variant is chosen). Records in
+    ``args.plugin_files`` the files the command line and the environment loaded,
+    for the command lines outputs record."""
+    from .. import plugins
+
+    plugins.load_entry_points()
+    env = plugins.from_environment()
+    given = [*(getattr(args, "plugins", None) or []), *getattr(args, "plugins_after", [])]
+    files = plugins.load_plugins(given)
+    args.plugin_files = list(dict.fromkeys([*env, *files]))
 
 
 @contextlib.contextmanager
@@ -240,6 +274,7 @@ def _run(argv: list[str], process: bool) -> int:
         with _configure_logging(args.quiet), termination_as_interrupt(), \
                 _mitsuba_log(args.quiet):
             _use_variant(args.variant)
+            _load_plugins(args)
             code = int(args.run(args) or 0)
             sys.stdout.flush()  # a closed pipe shows here, not at exit
             return code

@@ -64,13 +64,18 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def resume_command(args: argparse.Namespace, out: Path) -> str:
     """The command line that resumes this study: with its variant (whose key the
-    saved state carries; without it the state would belong to another study)."""
+    saved state carries; without it the state would belong to another study) and
+    the plugins the command line or ``$MCRT_PLUGINS`` loaded (the configuration's
+    own ``plugins`` load with it)."""
     import mitsuba as mi
+
+    from ..plugins import command_words
 
     quiet = ["-q"] if getattr(args, "quiet", False) else []
     variant = mi.variant() or "llvm_ad_rgb"
     given = ["--variant", variant] if getattr(args, "variant", None) or \
         variant != "llvm_ad_rgb" else []
+    given += command_words(getattr(args, "plugin_files", None) or [])
     return shlex.join(["mcrt", *quiet, *given, "compare", str(args.config), "-o", str(out)])
 
 
@@ -122,7 +127,11 @@ def run(args: argparse.Namespace) -> int:
     _print_summary(result)
     for line in bias_lines(result.cells):
         print(f"bias: {line}")
-    retime = shlex.join(["mcrt", "compare", str(args.config), "-o", str(out), "--retime"])
+    from ..plugins import command_words
+
+    plugins = command_words(getattr(args, "plugin_files", None) or [])
+    retime = shlex.join(["mcrt", *plugins, "compare", str(args.config), "-o", str(out),
+                         "--retime"])
     for line in timing_lines(result.timing, retime):
         print(f"timing: {line}")
     resumed = (f" ({result.resumed_cells} of {config.cells} cells from the saved state)"

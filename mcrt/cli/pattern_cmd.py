@@ -15,7 +15,7 @@ from ..analysis import patterns
 from ..core.atomic import atomic_path
 from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..errors import McrtError
-from ..samplers import BUILTIN_SAMPLERS
+from ..samplers.base import is_mcrt_sampler
 from ..samplers.points import MAX_BUILTIN_PIXEL, point_sets
 from ..samplers.poisson_tables import MAX_POINTS
 from . import SUMMARIES, _common
@@ -102,9 +102,14 @@ def parse_params(items: list[str] | None) -> dict:
 
 
 def grid_resolution(sampler: str, n: int) -> int | None:
-    """Strata per axis to draw for grid samplers (None for the others)."""
+    """Strata per axis to draw for grid samplers (None for the others): those of
+    :data:`GRID_SAMPLERS` and any registered sampler that claims k x k strata."""
+    from ..samplers import registry
+
     k = math.isqrt(n)
-    return k if sampler in GRID_SAMPLERS and k * k == n and k > 1 else None
+    grid = sampler in GRID_SAMPLERS or (sampler in registry.names() and
+                                        "stratified" in registry.info(sampler).claims)
+    return k if grid and k * k == n and k > 1 else None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -112,10 +117,11 @@ def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param)
     if args.spp > MAX_PATTERN_SPP:
         raise McrtError(f"--spp: at most {MAX_PATTERN_SPP} samples per pixel, got {args.spp}")
-    if name in BUILTIN_SAMPLERS and args.pixels > MAX_BUILTIN_PIXEL:
-        raise McrtError(f"--pixels: at most {MAX_BUILTIN_PIXEL} for Mitsuba's samplers")
     with quiet_sampler_warnings():
         sampler = make_sampler(name, args.spp, **params)  # checks the parameters
+    if not is_mcrt_sampler(sampler) and args.pixels > MAX_BUILTIN_PIXEL:  # seeded per wavefront
+        raise McrtError(f"--pixels: at most {MAX_BUILTIN_PIXEL} for Mitsuba's samplers "
+                        f"(and users' samplers that are not McrtSamplers)")
     n = sampler.sample_count()
     if n > MAX_PATTERN_SPP:
         raise McrtError(f"{name} rounds {args.spp} samples up to {n}, above {MAX_PATTERN_SPP}")

@@ -116,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
     cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
     note_first_run()
     metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
+    if getattr(args, "plugin_files", None):  # the user's plugin files the render needs
+        metadata["plugins"] = json.dumps([str(p) for p in args.plugin_files])
     if adaptive_settings is not None:
         metadata["plan"] = planned.plan.to_json()
         key = render_key(args.scene, params, overrides, name, 0, args.seed, None,
@@ -237,13 +239,16 @@ def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) ->
 
 def _job(args: argparse.Namespace, sampler: str, spp: int, stem: Path) -> str:
     """The render in words, as a command line (recorded with its checkpoints): every
-    option that changes its pixels (the variant, sampler parameters, multisampling,
-    adaptive settings), so that running it reproduces the render."""
+    option that changes its pixels (the variant, the user's plugins, sampler
+    parameters, multisampling, adaptive settings), so that running it reproduces
+    the render."""
     import mitsuba as mi
 
+    from ..plugins import command_words
     from ._adaptive_args import cli_parameters
 
-    words = ["mcrt", "--variant", mi.variant() or "llvm_ad_rgb", "render", str(args.scene),
+    words = ["mcrt", "--variant", mi.variant() or "llvm_ad_rgb",
+             *command_words(getattr(args, "plugin_files", None) or []), "render", str(args.scene),
              "--sampler", sampler, "--spp", str(spp), "--seed", str(args.seed)]
     words += [w for p in getattr(args, "sampler_params", None) or [] for w in ("-P", p)]
     words += [w for d in args.defines or [] for w in ("-D", d)]

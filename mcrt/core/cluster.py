@@ -54,13 +54,16 @@ _LOST = (OSError, TimeoutError, CancelledError)  # (CommClosedError is an OSErro
 
 class WorkerSetup(WorkerPlugin):
     """Prepares each worker process: Mitsuba's variant (the client's), mcrt's
-    plugins and the worker's share of Dr.Jit threads (local clusters: cores / N;
-    elsewhere ``$MCRT_WORKER_THREADS`` on the worker, else all its cores)."""
+    plugins, the user's sampler plugins the client loaded (``plugins``: see
+    :func:`mcrt.plugins.worker_state`) and the worker's share of Dr.Jit threads
+    (local clusters: cores / N; elsewhere ``$MCRT_WORKER_THREADS`` on the
+    worker, else all its cores)."""
 
     name = "mcrt-setup"
 
-    def __init__(self, variant: str, threads: int | None) -> None:
-        self.variant, self.threads = variant, threads
+    def __init__(self, variant: str, threads: int | None,
+                 plugins: dict[str, Any] | None = None) -> None:
+        self.variant, self.threads, self.plugins = variant, threads, plugins
 
     def setup(self, worker: Any) -> None:
         import drjit as dr
@@ -70,6 +73,10 @@ class WorkerSetup(WorkerPlugin):
         import mcrt
 
         mcrt.register()
+        if self.plugins:  # before any task builds a sampler
+            from ..plugins import install_worker_state
+
+            install_worker_state(self.plugins)
         threads = self.threads or int(os.environ.get("MCRT_WORKER_THREADS") or 0)
         if threads:
             dr.set_thread_count(threads)
@@ -79,9 +86,28 @@ class DaskExecutor:
     """The executor interface (``map``) over a ``distributed.Client``."""
 
     def __init__(self, client: Client, cluster: LocalCluster | None = None,
-                 address: str = "") -> None:
+                 address: str = "", variant: str = "", threads: int | None = None) -> None:
         self.client, self.cluster, self.address = client, cluster, address
         self._held: dict[str, Any] = {}  # scattered shared inputs, by content
+        self._variant, self._threads = variant, threads
+        self._plugins: tuple | None = None  # the plugin state the workers have
+        if variant:
+            self._setup_workers()
+
+    def _setup_workers(self) -> None:
+        """(Re-)register :class:`WorkerSetup` when the user's samplers changed since
+        the workers were set up (a study's plugins load after ``--cluster`` connects)."""
+        from .. import plugins
+
+        key = plugins.state_key()
+        if key == self._plugins:
+            return
+        try:
+            self.client.register_plugin(WorkerSetup(self._variant, self._threads,
+                                                    plugins.worker_state()))
+        except _LOST as error:
+            raise self._lost(error) from None
+        self._plugins = key
 
     @classmethod
     def connect(cls, address: str) -> DaskExecutor:
@@ -99,10 +125,9 @@ class DaskExecutor:
                                    dashboard_address="127.0.0.1:0",  # this machine only
                                    silence_logs=logging.ERROR)
             client = Client(cluster)
-            client.register_plugin(WorkerSetup(variant, max(1, cores // workers)))
             log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,
                      max(1, cores // workers))
-            return cls(client, cluster, address)
+            return cls(client, cluster, address, variant, max(1, cores // workers))
         if "://" not in address:
             raise McrtError(f"--cluster {address!r}: expected 'local', 'local:N' or a scheduler "
                             f"address such as tcp://HOST:8786")
@@ -112,8 +137,7 @@ class DaskExecutor:
         except (OSError, TimeoutError, ValueError) as error:
             raise McrtError(f"cannot reach the Dask scheduler at {address} "
                             f"({_first_line(error)})") from None
-        client.register_plugin(WorkerSetup(variant, None))
-        return cls(client, None, address)
+        return cls(client, None, address, variant, None)
 
     def status(self) -> str:
         """``workers B/N busy``: workers running a task, of all workers."""
@@ -127,6 +151,8 @@ class DaskExecutor:
     def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
             shared: dict[str, Any] | None = None,
             name: str = "") -> Iterator[tuple[int, R]]:
+        if self._variant:
+            self._setup_workers()  # plugins loaded since the last job
         shared_futures = {key: self._scatter(value) for key, value in (shared or {}).items()}
         run = uuid.uuid4().hex[:8]
         futures = {self.client.submit(fn, index, **shared_futures, pure=False, retries=RETRIES,

@@ -42,9 +42,21 @@ def mitsuba_message(error: BaseException) -> str:
 
 
 def check_sampler_name(name: str) -> str:
-    """Return ``name`` if mcrt can render with that sampler, else raise."""
+    """Return ``name`` if mcrt can render with that sampler, else raise.
+
+    A name mcrt does not know yet first has the installed packages' samplers
+    and ``$MCRT_PLUGINS`` loaded (:func:`mcrt.plugins.autoload`, once)."""
     known = names()
     if name not in known:
+        from .. import plugins
+
+        plugins.autoload()
+        known = names()
+        if name in known:
+            return name
+        why = plugins.unavailable(name)
+        if why:
+            raise SamplerError(why)
         raise SamplerError(f"unknown sampler {name!r}{did_you_mean(name, known)}; "
                            f"choose one of: {', '.join(known)} (or load yours with --plugin)")
     return name

@@ -21,19 +21,22 @@ Every sampler name, ours, Mitsuba's and users', lives in one registry
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import SamplerError
 from . import registry
-from .base import McrtSampler
 from .registry import names
+
+if TYPE_CHECKING:  # looked up when asked for (below): a variant switch re-creates it
+    from .base import McrtSampler as McrtSampler
 
 #: Mitsuba's built-in samplers that mcrt compares against.
 BUILTIN_SAMPLERS: tuple[str, ...] = tuple(registry.MITSUBA_SAMPLERS)
 
 #: Class names this package exports, by module (the classes are re-created
 #: after a variant switch, so they are looked up when asked for).
-_CLASS_MODULES = {"JitteredSampler": "jittered", "UniformGridSampler": "jittered",
+_CLASS_MODULES = {"McrtSampler": "base", "JitteredSampler": "jittered",
+                  "UniformGridSampler": "jittered",
                   "PoissonDiskSampler": "poisson_disk", "SobolSampler": "sobol",
                   "ZSobolSampler": "zsobol", "PointSetSampler": "pointset"}
 
@@ -95,6 +98,6 @@ def register_sampler(name: str, sampler: type | None = None, *, points=None,
                         randomize=randomize, claims=frozenset(claims), origin=origin)
 
 
-__all__ = ["ALL_SAMPLERS", "BUILTIN_SAMPLERS", "PLUGINS", "McrtSampler", "names",
+__all__ = ["ALL_SAMPLERS", "BUILTIN_SAMPLERS", "PLUGINS", "names",
            "register", "register_sampler", "registry", "standalone_names",
            *_CLASS_MODULES]

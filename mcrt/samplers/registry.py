@@ -22,7 +22,8 @@ files) and registers every entry again.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -86,6 +87,44 @@ _REBUILDS: dict[str, Callable[[], None]] = {}
 _shipped_variant: str | None = None
 
 
+@dataclass
+class _Source:
+    """Code that registers samplers while it runs (a plugin file, an entry point)."""
+
+    origin: str
+    rebuild: Callable[[], None] | None
+    registered: list[str] = field(default_factory=list)
+
+
+#: The sources running now, innermost last (see :func:`registering`).
+_SOURCES: list[_Source] = []
+#: Origins of every source that registered something (plugin files, entry points).
+_SOURCE_ORIGINS: set[str] = set()
+
+
+@contextmanager
+def registering(origin: str, rebuild: Callable[[], None] | None = None) -> Iterator[list[str]]:
+    """While a user's plugin (``origin``: its file, or its entry point) runs:
+    its registrations default their ``origin`` to it and (for classes) their
+    ``rebuild`` hook to ``rebuild``, which re-runs the plugin after a variant
+    switch. Yields the list of names it registers (filled as it runs).
+
+    A plugin may not take a name another plugin registered (a SamplerError);
+    running the same plugin again replaces its own names.
+    """
+    source = _Source(origin, rebuild)
+    _SOURCES.append(source)
+    try:
+        yield source.registered
+    finally:
+        _SOURCES.pop()
+
+
+def default_origin(fallback: str = "") -> str:
+    """The origin of the plugin running now (see :func:`registering`), else ``fallback``."""
+    return _SOURCES[-1].origin if _SOURCES else fallback
+
+
 def _first_line(text: str | None) -> str:
     lines = [line.strip() for line in (text or "").strip().splitlines() if line.strip()]
     return lines[0] if lines else ""
@@ -114,6 +153,15 @@ def _check_name(name: str, replace: bool) -> None:
     taken = _ENTRIES.get(name)
     if taken is not None and not replace and taken.kind in ("mcrt", "mitsuba"):
         raise SamplerError(f"sampler name {name!r} is taken by {taken.kind}'s {name}")
+
+
+def _check_plugin_name(name: str, origin: str) -> None:
+    """A plugin may replace its own names (it runs again after a variant switch),
+    not those another plugin registered."""
+    taken = _ENTRIES.get(name)
+    if taken is not None and taken.origin != origin and taken.origin in _SOURCE_ORIGINS:
+        raise SamplerError(f"sampler name {name!r} is taken: {taken.origin} registered it "
+                           f"already")
 
 
 def _add(info: SamplerInfo, cls: type | None) -> None:
@@ -147,6 +195,13 @@ def register_class(cls: type, name: str | None = None, *, origin: str = "",
     if not name:
         raise SamplerError(f"register_class: {cls.__name__} has no plugin_name; pass a name")
     _check_name(name, replace=kind == "mcrt")
+    source = _SOURCES[-1] if _SOURCES and kind != "mcrt" else None
+    if source is not None:
+        origin = origin or source.origin
+        rebuild = rebuild if rebuild is not None else source.rebuild
+        _check_plugin_name(name, source.origin)
+        source.registered.append(name)
+        _SOURCE_ORIGINS.add(source.origin)
     if getattr(cls, "plugin_name", name) != name:
         cls = type(cls.__name__, (cls,), {"plugin_name": name})
     _add(SamplerInfo(name, kind, _summary_of(cls), claims_of(cls), origin or cls.__module__,

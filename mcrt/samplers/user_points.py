@@ -35,6 +35,8 @@ def points_class(name: str, *, points: Callable | None = None, file: str | Path 
         source = point_sources.FileSource(file)  # type: ignore[arg-type]
         what = f"point sets of {Path(str(file)).name}"
     summary = f"{what}, {randomize}"
+    # A plugin file's registration keeps naming the file after a variant switch.
+    origin = origin or registry.default_origin("register_sampler")
 
     def make() -> type:
         module = importlib.import_module(f"{__package__}.pointset")
@@ -44,7 +46,7 @@ def points_class(name: str, *, points: Callable | None = None, file: str | Path 
                      "example_params": staticmethod(lambda spp: {})})
 
     def rebuild() -> None:
-        registry.register_class(make(), name, origin=origin or "register_sampler",
+        registry.register_class(make(), name, origin=origin,
                                 rebuild=rebuild, kind="points")
 
     rebuild()

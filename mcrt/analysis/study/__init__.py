@@ -15,6 +15,9 @@ A study is described by a TOML file (see ``configs/quick.toml``)::
     filters = ["box", "gaussian"]       # optional axis: each scene once per film filter
                                         # (cells' scene "<name>~<filter>", filter-aware
                                         # references; see configs/filters.toml)
+    plugins = ["my_sampler.py"]         # optional: files registering samplers (relative
+                                        # to the TOML file; see mcrt.plugins), loaded
+                                        # before the samplers are checked
 
     [reference]                         # high-spp image every render is compared with
     spp = 4096

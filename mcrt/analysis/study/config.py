@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ...errors import McrtError
+from ...plugins import file_digest
 from ..aliasing import MIN_SIZE, measurable
 
 log = logging.getLogger("mcrt.compare")
@@ -33,7 +34,7 @@ MIN_REFERENCE_FACTOR = 4
 MAX_NAME_BYTES = 200
 
 _TOP_KEYS = {"name", "description", "spp", "seeds", "image_spp", "aliasing_draws", "samplers",
-             "reference", "scenes", "filters", "baseline", "time_rounds"}
+             "reference", "scenes", "filters", "baseline", "time_rounds", "plugins"}
 
 #: Timed renders per cell when the configuration does not say (at least one per seed):
 #: five rounds keep the 95% interval of a cell's time within a few percent on a quiet
@@ -107,6 +108,8 @@ class StudyConfig:
     time_rounds: int = 0
     #: effective sample count of every (sampler label, requested spp), filled by validation
     effective_spp: dict[tuple[str, int], int] = field(default_factory=dict)
+    #: the user's sampler plugins (``plugins = [...]``, resolved), loaded by :func:`parse_config`
+    plugins: tuple[Path, ...] = ()
 
     @property
     def cells(self) -> int:
@@ -137,6 +140,10 @@ class StudyConfig:
             "filters": list(self.filters),
             "samplers": [{"name": s.name, "label": s.label, "params": s.params}
                          for s in self.samplers],
+            # Only when given (older studies keep their keys); a plugin's content is
+            # part of its samplers, so its digest is recorded (and keys the saved state).
+            **({"plugins": [{"path": str(p), "sha256": file_digest(p)} for p in self.plugins]}
+               if self.plugins else {}),
         }
 
 
@@ -228,6 +235,7 @@ def parse_config(data: dict[str, Any], base_dir: Path | None = None, name: str =
     if image_spp not in spp:
         raise ConfigError(f"image_spp ({image_spp}) must be one of spp {list(spp)}")
     draws = _int(data.get("aliasing_draws", STUDY_NULL_DRAWS), "aliasing_draws", 2, 100001)
+    plugins = _load_plugins(data.get("plugins"), base_dir)  # before any sampler name is checked
     samplers = _parse_samplers(data["samplers"])
     reference = _parse_reference(data["reference"], max(spp))
     filters = _parse_filters(data.get("filters"))
@@ -243,7 +251,7 @@ def parse_config(data: dict[str, Any], base_dir: Path | None = None, name: str =
         scenes=scenes, samplers=samplers, spp=spp, seeds=seeds,
         reference=reference, image_spp=image_spp, aliasing_draws=draws, path=path,
         filters=filters, baseline=_baseline(data.get("baseline"), samplers),
-        time_rounds=rounds)
+        time_rounds=rounds, plugins=plugins)
 
 
 def _baseline(value: Any, samplers: tuple[SamplerSpec, ...]) -> str:
@@ -257,6 +265,33 @@ def _baseline(value: Any, samplers: tuple[SamplerSpec, ...]) -> str:
         raise ConfigError(f"baseline {label!r} is not one of the study's samplers "
                           f"({', '.join(labels)})")
     return label
+
+
+def _load_plugins(value: Any, base_dir: Path) -> tuple[Path, ...]:
+    """``plugins = ["my_sampler.py", ...]`` (relative to the configuration's folder):
+    each file must exist; each is loaded now (see :mod:`mcrt.plugins`)."""
+    if value is None:
+        return ()
+    if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
+        raise ConfigError(f"plugins must be a list of plugin files (strings), got {value!r}")
+    from ...plugins import load_plugin
+
+    paths = []
+    for i, raw in enumerate(value):
+        try:
+            path = Path(raw.strip()).expanduser()
+            path = (path if path.is_absolute() else base_dir / path).resolve()
+            found = path.is_file()
+        except (RuntimeError, ValueError, OSError) as error:
+            raise ConfigError(f"plugins[{i}] {raw!r}: {error}") from None
+        if not found:
+            raise ConfigError(f"plugins[{i}]: plugin file not found: {path}")
+        try:
+            load_plugin(path)
+        except McrtError as error:
+            raise ConfigError(f"plugins[{i}]: {error}") from None
+        paths.append(path)
+    return tuple(dict.fromkeys(paths))
 
 
 def _parse_spp(value: Any) -> tuple[int, ...]:
