@@ -292,8 +292,11 @@ def jittered_sets(count: int, n: int, rng: np.random.Generator) -> np.ndarray:
     return (cells + rng.random((count, n, 2))) / k
 
 
-def example_file(n: int, sets: int = 64) -> Path:
-    """A ``.npy`` file of jittered sets of ``n`` points in mcrt's cache (written once)."""
+def example_file(n: int, sets: int | None = None) -> Path:
+    """A ``.npy`` file of jittered sets of ``n`` points in mcrt's cache (written once):
+    by default 1024 sets (a table's fixed error is ~1/sqrt(8 x 1024) of one set's,
+    see docs/extending.md), fewer for large ``n`` (at most 2^20 points, at least 16 sets)."""
+    sets = sets or max(16, min(1024, (1 << 20) // n))
     path = cache_dir("pointsets") / f"example-jittered-{sets}x{n}.npy"
     if not path.is_file():
         table = check_table(jittered_sets(sets, n, np.random.default_rng([7, n])), "example")
