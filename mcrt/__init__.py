@@ -3,10 +3,11 @@
 Importing the package activates the ``llvm_ad_rgb`` variant when none is active
 (after checking that Dr.Jit has a usable libLLVM) and registers mcrt's plugins
 (the samplers of :data:`mcrt.samplers.PLUGINS`: ``uniform_grid``, ``jittered``,
-``poisson_disk``, ``sobol``, ``zsobol``; integrators ``distribution``, ``adaptive``
+``poisson_disk``, ``sobol``, ``zsobol``, ``pointset``; integrators ``distribution``, ``adaptive``
 and ``multisample``), so ``mi.load_dict({'type': 'jittered', ...})``
 works right away.
-Call :func:`register` again after switching variants.
+Call :func:`register` again after switching variants; :func:`register_sampler`
+brings in a user's sampler (docs/extending.md).
 
 The import is kept cheap (about what ``import mitsuba`` and ``set_variant``
 cost): numpy, the adaptive renderer and the analysis modules are imported when
