@@ -451,3 +451,12 @@ def test_what_a_worker_gets_of_this_processes_samplers(tmp_path):
     with pytest.raises(SamplerError, match="'locked' was registered in the client .* cannot be "
                                            "sent to the Dask workers .*--plugin FILE.py"):
         check_sampler_name("locked")
+
+
+def test_a_scene_naming_an_unloaded_users_sampler_points_to_plugin(scene, capsys):
+    """Mitsuba only says 'Plugin "mine" not found'; mcrt says how to load it."""
+    scene.write_text(scene.read_text().replace('type="jittered"', 'type="not_loaded_here"')
+                     .replace('<float name="jitter" value="$jitter"/>', ""))
+    code, _, err = run_cli(capsys, "render", str(scene), "-o", str(scene.parent / "out"))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "'not_loaded_here' is your own sampler" in err and "--plugin FILE.py" in err

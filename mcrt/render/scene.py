@@ -72,7 +72,12 @@ def scene_parameters(path: str | Path) -> list[str]:
 
 
 def _explain(message: str, path: Path) -> str:
-    """Mitsuba's message, with the scene's parameters listed when a ``-D`` is unused."""
+    """Mitsuba's message, with the scene's parameters listed when a ``-D`` is unused,
+    and a pointer to ``--plugin`` when the scene names a sampler nobody registered."""
+    unknown = re.search(r'sampler plugin of type "(\w+)".*Plugin "\1" not found', message)
+    if unknown:
+        return (f"{message}; if {unknown.group(1)!r} is your own sampler, load the file that "
+                f"registers it with --plugin FILE.py (or $MCRT_PLUGINS; see docs/extending.md)")
     if "unused parameter" not in message:
         return message
     names = scene_parameters(path)
@@ -128,7 +133,8 @@ class SceneDescription:
                 mi.parser.transform_all(self.config, state)
                 scene = mi.parser.instantiate(self.config, state)
         except Exception as error:  # Mitsuba reports plugin errors as RuntimeError
-            raise SceneError(f"cannot load scene {self.path}: {mitsuba_message(error)}") from None
+            raise SceneError(f"cannot load scene {self.path}: "
+                             f"{_explain(mitsuba_message(error), self.path)}") from None
         if not isinstance(scene, mi.Scene):
             raise _not_a_scene(self.path)
         if not scene.sensors():
@@ -206,7 +212,8 @@ def _upgrade(config: mi.parser.ParserConfig, state: mi.parser.ParserState, path:
         mi.parser.transform_upgrade(config, state)
         mi.parser.transform_resolve(config, state)
     except Exception as error:  # e.g. a reference to a missing id
-        raise SceneError(f"cannot load scene {path}: {mitsuba_message(error)}") from None
+        raise SceneError(f"cannot load scene {path}: "
+                         f"{_explain(mitsuba_message(error), path)}") from None
 
 
 def load_scene(path: str | Path, params: dict[str, str] | None = None) -> mi.Scene:
