@@ -24,9 +24,10 @@ import numpy as np
 
 from ..core.atomic import atomic_path
 from ..samplers import registry
-from .check import FULL, QUICK, CheckResult
+from .check import CheckResult, budget_for
 
-#: What each row checks, for the report (the margins are in :mod:`.check`).
+#: What each row checks, for the report (the margins are in :mod:`.check`,
+#: :mod:`.check_claims` and :mod:`.check_stats`).
 ROWS: dict[str, str] = {
     "determinism": "two fresh instances with the same seed draw the same bits",
     "range": "every value is finite and in [0, 1)",
@@ -35,7 +36,8 @@ ROWS: dict[str, str] = {
     "seeding": "another seed changes the values of every call",
     **{name: f"claim: {text}" for name, text in registry.CLAIMS.items()},
     "unbiasedness": "mean estimate of each integrand (and of a product over two dimensions) "
-                    "equals its value: t tests, Holm's correction at alpha 1e-3",
+                    "equals its value: t tests, Holm's correction at alpha 1e-3 (a quadrature "
+                    "sampler's film terms are reported, not tested)",
     "mse_rate": "MSE falls at least as fast as independent sampling's N^-1 (N^-1.3 on the "
                 "disk for stratified, net and min-distance claims)",
     "discrepancy": "L2-star discrepancy no worse than independent points'",
@@ -75,13 +77,13 @@ def _plain(value: Any) -> Any:
 
 
 def summary(name: str, params: dict[str, Any], seed: int, quick: bool,
-            results: list[CheckResult]) -> dict[str, Any]:
-    """The content of ``results.json``."""
+            results: list[CheckResult], spp: int | None = None) -> dict[str, Any]:
+    """The content of ``results.json`` (``spp``: ``--spp``, if given)."""
     info = registry.info(name)
     return _plain({
         "sampler": name, "kind": info.kind, "summary": info.summary,
         "claims": sorted(info.claims), "params": params, "seed": seed, "quick": quick,
-        "budget": asdict(QUICK if quick else FULL),
+        "spp": spp, "budget": asdict(budget_for(quick, spp)),
         "passed": all(r.status != "FAIL" for r in results), "verdict": verdict(results),
         "checks": [{"name": r.name, "status": r.status, "passed": r.passed,
                     "skipped": r.skipped, "figure": r.figure, "detail": r.detail,
@@ -144,6 +146,7 @@ def render_html(data: dict[str, Any], figures: list[str]) -> str:
     """``report.html`` for :func:`summary`'s ``data`` and the figure files."""
     e = html.escape
     params = ", ".join(f"{k}={v}" for k, v in data["params"].items()) or "none"
+    spp = f", --spp {data['spp']}" if data.get("spp") else ""
     rows = "".join(
         f"<tr><td><b>{e(c['name'])}</b><br><small>{e(ROWS.get(c['name'], ''))}</small></td>"
         f"<td class='{e(c['status'])}'>{e(c['status'])}</td><td>{e(c['figure'])}</td>"
@@ -155,19 +158,20 @@ def render_html(data: dict[str, Any], figures: list[str]) -> str:
             f"<h1>mcrt check {e(data['sampler'])}</h1>"
             f"<p>{e(data['summary'])} ({e(data['kind'])}); claims: "
             f"{e(', '.join(data['claims']) or 'none')}; parameters: {e(params)}; seed "
-            f"{data['seed']}{', quick budget' if data['quick'] else ''}.</p>"
+            f"{data['seed']}{', quick budget' if data['quick'] else ''}{spp}.</p>"
             f"<p><b>{e(data['verdict'])}</b></p><table><tr><th>property</th><th>result</th>"
             f"<th>figure</th><th>detail</th></tr>{rows}</table>{images}"
             f"<p><small>Every check uses fixed seeds; the margins are documented in "
-            f"mcrt.analysis.check. Numbers: results.json.</small></p></body></html>\n")
+            f"mcrt.analysis.check, check_claims and check_stats. Numbers: results.json."
+            f"</small></p></body></html>\n")
 
 
 def write_report(out: Path, name: str, params: dict[str, Any], seed: int, quick: bool,
-                 results: list[CheckResult]) -> list[str]:
+                 results: list[CheckResult], spp: int | None = None) -> list[str]:
     """Write the figures, ``results.json`` and ``report.html`` to ``out``; returns
     the names of the files written."""
     figures = _figures(out, name, results)
-    data = summary(name, params, seed, quick, results)
+    data = summary(name, params, seed, quick, results, spp)
     with atomic_path(out / "results.json") as tmp:
         Path(tmp).write_text(json.dumps(data, indent=2) + "\n")
     with atomic_path(out / "report.html") as tmp:

@@ -134,6 +134,7 @@ class UniformGridSampler(JitteredSampler):
 
     plugin_name = "uniform_grid"
     summary = "regular k x k grid: cell centres on the film, shifted lattices elsewhere"
+    claims = frozenset({"stratified", "quadrature"})
 
     def _configure(self, props: mi.Properties) -> None:
         self.jitter = 0.0

@@ -132,7 +132,8 @@ class PointSetSampler(McrtSampler):
          registered with a generator)
      * - sample_count
        - |int|
-       - Samples per pixel: must equal a set size N of the file. (Default: 4)
+       - Samples per pixel: must equal a set size N of the file. (Default: 4,
+         or the file's smallest set size if it holds no 4-point sets)
      * - randomize
        - |string|
        - ``none``, ``symmetry``, ``shift``, ``xor`` or ``symmetry_shift`` (see
@@ -191,14 +192,25 @@ class PointSetSampler(McrtSampler):
                                    f"<string name=\"filename\" value=\"sets.npy\"/>")
             self.filename = str(props["filename"])
             self._source = FileSource(self.filename)
+        # Without a sample_count the C++ default (4) stands in; a file that has no
+        # 4-point sets then serves its smallest (see _effective_count).
+        self._count_defaulted = "sample_count" not in props
 
     def _parameters(self) -> dict:
         params = {"randomize": self.randomize, "dims1d": self.dims1d}
         return {"filename": self.filename, **params} if self.filename else params
 
+    def sample_counts(self) -> tuple[int, ...] | None:
+        """The sample counts this sampler serves, ascending: the set sizes of its
+        file; None for a generator (any count)."""
+        return self._source.counts()  # type: ignore[attr-defined]
+
     def _effective_count(self, spp: int) -> int:
-        counts = self._source.counts()  # type: ignore[attr-defined]
+        counts = self.sample_counts()
+        defaulted, self._count_defaulted = self._count_defaulted, False
         if counts is not None and spp not in counts:
+            if defaulted:  # constructed without a sample_count
+                return counts[0]
             from .point_sources import count_mismatch
 
             raise count_mismatch(f"{self.plugin_name} ({self._source.describe()})",  # type: ignore[attr-defined]

@@ -39,6 +39,8 @@ CLAIMS: dict[str, str] = {
            "elementary interval of area 1/N",
     "min_distance": "toroidal minimum distance >= 0.75 of the hexagonal packing's spacing",
     "progressive": "sample j of a pixel is the same point whatever the sample count",
+    "quadrature": "film positions are fixed cell centres (quadrature, not Monte Carlo): "
+                  "biased by design; the other dimensions are random",
 }
 
 #: Modules of this package that define mcrt's sampler plugins (each lists its

@@ -1,0 +1,214 @@
+"""``mcrt check``: the statistics, on :mod:`.integrate`'s integrands (values I known).
+
+* **unbiasedness**: P pixels of N = 16 samples (calls ``2d, 1d, 2d, 2d``) are P
+  trials of each integrand on the film call, on call 4, and of the product
+  f(call 1) f(call 4) (value I^2 only if the dimensions are independent, as a
+  path integrand needs: Mitsuba's ``ldsampler`` gives every dimension of a pixel
+  the same points reordered, and fails). t of the mean on P - 1 degrees of
+  freedom, Holm's step-down at family-wise ``ALPHA = 1e-3``. Power: a bias b is
+  found with probability >= 0.999 once ``|b| >= (t_{1-ALPHA/2m} + t_{0.999}) se``
+  (~7 se, m = 9); the detail prints the largest over the tests, relative to the
+  value: 2.5% at P = 16384 (10% quick) for independent points, 2% (8%) for
+  jittered; points in [0, 0.9) bias the disk by +23% (t > 10). Pixels sharing T
+  unshifted table sets (pointset, randomize none/symmetry) share the table's
+  error: ``se^2 = sd^2 (1/P + 1/T)``. At a larger N, P is capped so that
+  ``P N <= unbiased_lanes`` (16384 x 64; quick 1024 x 64).
+
+  A sampler that claims **quadrature** (``uniform_grid``: film positions at the
+  cell centres, on purpose) has a film estimate with no sampling error and a
+  bias by design. Its terms that involve the film call (f(call 1) and the
+  product f(call 1) f(call 4)) are reported in the detail as information, not
+  tested; every term that does not is tested: f(call 4) and, in place of the
+  film product, f(call 3) f(call 4) (m = 6). The claim lets off the film alone:
+  a sampler biased in the other dimensions still fails.
+* **mse_rate**: MSE against N (run_convergence, fresh seeds per N), slope by
+  fit_slope (se scaled by sqrt(chi2/dof)): pass if ``slope <= -1 + 0.1 + 3 se``
+  on every integrand (independent points' rate), and ``<= -1.3 + 3 se`` on the
+  disk for a stratified / net / min_distance claim (the variance suite's bound
+  on the N^-1.5 of edges [Mitchell 1996]). A sampler that serves only some
+  counts is fitted over those in the budget's range; fewer than
+  :data:`MIN_RATE_COUNTS` skip the check.
+* **discrepancy** (mean L2-star D^2 over independent points' ``(1/4 - 1/9) / N``
+  [Warnock 1972]) and **spectrum** (mean power at 0 < f < 0.5, white noise 1):
+  se from the pixels; pass if ``<= 1 + 0.1 + 4 se`` (informative). Both cost
+  ~N^2 per pixel: at a larger N, P is capped so that ``P N^2 <= pattern_pairs``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import mitsuba as mi
+import numpy as np
+
+from . import patterns
+from .check import Budget, Check, CheckResult, Subject, Unsupported, draw
+from .integrate import INTEGRANDS, Convergence, Integrand, run_convergence
+from .significance import holm, t_quantile, two_sided_p
+
+UNBIASED_CALLS: tuple[str, ...] = ("2d", "1d", "2d", "2d")
+ALPHA, POWER = 1e-3, 0.999
+RATE_MARGIN, RATE_SIGMAS, STRATIFIED_DISK_SLOPE = 0.1, 3.0, -1.3
+MIN_RATE_COUNTS = 3
+PATTERN_MARGIN, PATTERN_SIGMAS = 0.1, 4.0
+#: Fewest pixels a capped budget leaves (unbiasedness, patterns).
+MIN_PIXELS = 8
+
+
+def _table_sets(sampler: mi.Sampler) -> int | None:
+    """Sets T that pixels share unshifted (a random shift makes each set's
+    estimate unbiased on its own, and the pixels' estimates uncorrelated)."""
+    table = getattr(sampler, "_table", None)
+    if table is None or getattr(sampler, "randomize", None) not in ("none", "symmetry"):
+        return None
+    return int(table()[2])
+
+
+def _t_test(values: np.ndarray, exact: float, sets: int | None) -> tuple[float, float, float]:
+    """Relative bias, its standard error and t of per-pixel estimates (module doc)."""
+    bias = float(np.mean(values)) - exact
+    se = float(np.std(values, ddof=1)) * math.sqrt(1 / values.size + (1 / sets if sets else 0))
+    se *= float(np.ptp(values) > 1e-12 * max(1.0, abs(exact)))  # 0: deterministic
+    t = bias / se if se > 0 else 0.0 if abs(bias) <= 1e-9 else math.copysign(math.inf, bias)
+    return bias / exact, se / abs(exact), t
+
+
+Terms = dict[str, tuple[np.ndarray, float]]
+
+
+def _terms(g: Integrand, film: np.ndarray, third: np.ndarray, last: np.ndarray,
+           quadrature: bool) -> tuple[Terms, Terms]:
+    """Values of integrand ``g`` at each point ``(P, N)`` of calls 1, 3 and 4, and
+    their integral, by term: (tested, reported only). A quadrature sampler's film
+    terms are reported, the product of calls 3 and 4 tested instead (module doc)."""
+    f0, f2, f3 = (g.function(c[..., 0], c[..., 1]) for c in (film, third, last))
+    own, product = g.name, f"{g.name} x {g.name}"
+    terms = {own: (f0, g.exact), f"{g.name} call 4": (f3, g.exact),
+             product: (f0 * f3, g.exact ** 2)}
+    if not quadrature:
+        return terms, {}
+    reported = {key: terms.pop(key) for key in (own, product)}
+    terms[f"{g.name} call 3 x 4"] = (f2 * f3, g.exact ** 2)
+    return terms, reported
+
+
+def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
+    n = subject.count(budget.unbiased_spp)
+    pixels = min(budget.unbiased_pixels, max(MIN_PIXELS, budget.unbiased_lanes // n))
+    sampler = subject.seeded(n, pixels, seed)
+    sets, n = _table_sets(sampler), sampler.sample_count()
+    first, _, third, last = (c.reshape(pixels, n, -1) for c in draw(sampler, UNBIASED_CALLS))
+    tests, film = {}, {}
+    for g in INTEGRANDS.values():
+        tested, info = _terms(g, first, third, last, "quadrature" in subject.info.claims)
+        tests.update({k: _t_test(f.mean(axis=1), v, sets) for k, (f, v) in tested.items()})
+        film.update({k: _t_test(f.mean(axis=1), v, sets) for k, (f, v) in info.items()})
+    p = [two_sided_p(t, pixels - 1) if math.isfinite(t) else 0.0 for _, _, t in tests.values()]
+    rejected = holm(p, ALPHA)
+    limit = t_quantile(1 - ALPHA / (2 * len(p)), pixels - 1)
+    detectable = (limit + t_quantile(POWER, pixels - 1)) * max(s for _, s, _ in tests.values())
+    flagged = [f"{k}: bias {b:+.2%} (t = {t:+.3g}{', no sampling error' if s == 0 else ''})"
+               for (k, (b, s, t)), r in zip(tests.items(), rejected) if r]
+    detail = ("biased: " + "; ".join(flagged) if flagged else
+              "t " + ", ".join(f"{k} {t:+.1f}" for k, (_, _, t) in tests.items())
+              + f"; |t| > {limit:.2f} fails, biases above {detectable:.1%} are found")
+    if film:
+        detail += ("; film terms (quadrature, biased by design, not tested): "
+                   + ", ".join(f"{k} {b:+.2%}" for k, (b, _, _) in film.items()))
+    worst = max(abs(t) for _, _, t in tests.values())
+    values: dict[str, Any] = {k: {"relative_bias": b, "t": t, "p": q, "tested": True}
+                              for (k, (b, _, t)), q in zip(tests.items(), p)}
+    values.update({k: {"relative_bias": b, "t": t, "p": None, "tested": False}
+                   for k, (b, _, t) in film.items()})
+    return CheckResult("unbiasedness", not flagged, f"max |t| {worst:.3g}",
+                       f"{pixels} px x {n} spp, Holm alpha {ALPHA:g}: {detail}", values=values)
+
+
+def rate_counts(subject: Subject, budget: Budget) -> tuple[int, ...]:
+    """The counts of the rate: the budget's, or the served ones in its range
+    (Unsupported if fewer than :data:`MIN_RATE_COUNTS`)."""
+    if subject.served is None:
+        return budget.rate_counts
+    low, high = budget.rate_counts[0], budget.rate_counts[-1]
+    inside = tuple(c for c in subject.served if low <= c <= high)
+    if len(inside) < MIN_RATE_COUNTS:
+        raise Unsupported(f"{subject.name} serves N = {', '.join(map(str, subject.served))}: "
+                          f"{len(inside)} in {low}..{high}, a rate needs {MIN_RATE_COUNTS}")
+    return inside
+
+
+def convergence(subject: Subject, budget: Budget, seed: int = 0) -> dict[str, Convergence]:
+    """MSE of every integrand at each of the rate's counts (fresh seed per count)."""
+    out = {name: Convergence(subject.name, name) for name in INTEGRANDS}
+    for index, n in enumerate(rate_counts(subject, budget)):
+        for name, conv in run_convergence(
+                subject.name, INTEGRANDS, [n], max_trials=budget.rate_trials,
+                budget=budget.rate_budget, seed=seed + index, timed=False,
+                **subject.params(n)).items():
+            out[name].points += conv.points
+            out[name].skipped += conv.skipped
+    return out
+
+
+def check_mse_rate(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
+    conv = convergence(subject, budget, seed)
+    strict = bool(subject.info.claims & {"stratified", "net", "min_distance"})
+    parts, failed, values = [], [], {}
+    for name, c in conv.items():
+        fit = c.fit()
+        if fit.points < MIN_RATE_COUNTS:
+            raise Unsupported(f"{subject.name} makes {fit.points} of N = "
+                              f"{', '.join(map(str, rate_counts(subject, budget)))}, a rate "
+                              f"needs {MIN_RATE_COUNTS}")
+        se = fit.stderr_scaled if math.isfinite(fit.stderr_scaled) else 0.0
+        limit = -1.0 + RATE_MARGIN + RATE_SIGMAS * se
+        if name == "disk" and strict:
+            limit = min(limit, STRATIFIED_DISK_SLOPE + RATE_SIGMAS * se)
+        parts.append(f"{name} {fit.slope:+.2f} +- {se:.2f} (<= {limit:+.2f})")
+        values[name] = {"slope": fit.slope, "stderr": se, "limit": limit}
+        if not fit.slope <= limit:
+            failed.append(name)
+    counts = sorted({p.n for c in conv.values() for p in c.points})
+    slopes = " / ".join(f"{v['slope']:+.2f}" for v in values.values())
+    return CheckResult("mse_rate", not failed, slopes, f"MSE ~ N^slope, N = {counts[0]}.."
+                       f"{counts[-1]}: " + ", ".join(parts)
+                       + (f"; too slow: {', '.join(failed)}" if failed else ""),
+                       values=values, data={"convergence": conv})
+
+
+def _relative(name: str, samples: np.ndarray, expected: float, what: str,
+              data: dict[str, Any]) -> CheckResult:
+    ratio = float(np.mean(samples)) / expected
+    se = float(np.std(samples, ddof=1)) / math.sqrt(len(samples)) / expected
+    limit = 1.0 + PATTERN_MARGIN + PATTERN_SIGMAS * se
+    return CheckResult(name, ratio <= limit, f"{ratio:.3g} x iid",
+                       f"{what} {ratio:.3g} +- {se:.2g} x independent points' (<= {limit:.3g})",
+                       values={"ratio": ratio, "stderr": se, "limit": limit}, data=data)
+
+
+def _pattern_points(subject: Subject, budget: Budget, seed: int) -> np.ndarray:
+    """Film points of the pattern checks, ``(P, N, 2)`` at the budget's count."""
+    n = subject.count(budget.pattern_spp)
+    pixels = min(budget.pattern_pixels, max(MIN_PIXELS, budget.pattern_pairs // (n * n)))
+    return subject.points(pixels, n, seed=seed)
+
+
+def check_discrepancy(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
+    pts = _pattern_points(subject, budget, seed)
+    d2 = np.atleast_1d(patterns.l2_star_discrepancy(pts, squared=True))
+    return _relative("discrepancy", d2, (1 / 4 - 1 / 9) / pts.shape[1],
+                     f"L2-star D^2, N = {pts.shape[1]}, {len(pts)} px:", {"points": pts[:2]})
+
+
+def check_spectrum(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
+    pts = _pattern_points(subject, budget, seed)
+    n, kmax = pts.shape[1], patterns.default_kmax(pts.shape[1])
+    spectra = [patterns.power_spectrum(p, kmax) for p in pts]
+    low = np.array([patterns.low_frequency_power(patterns.radial_spectrum(s, n)) for s in spectra])
+    radial = patterns.radial_spectrum(np.mean(spectra, axis=0), n, len(pts))
+    return _relative("spectrum", low, 1.0, f"power at 0 < f < 0.5, N = {n}:", {"radial": radial})
+
+
+STATISTICS: tuple[Check, ...] = (check_unbiasedness, check_mse_rate, check_discrepancy,
+                                 check_spectrum)
