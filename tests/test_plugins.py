@@ -19,7 +19,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 import pytest
-from conftest import TINY_SCENE, run_cli
+from conftest import ROOT, TINY_SCENE, run_cli
 
 import mcrt
 from mcrt import plugins
@@ -460,3 +460,41 @@ def test_a_scene_naming_an_unloaded_users_sampler_points_to_plugin(scene, capsys
     code, _, err = run_cli(capsys, "render", str(scene), "-o", str(scene.parent / "out"))
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "'not_loaded_here' is your own sampler" in err and "--plugin FILE.py" in err
+
+
+def test_a_changed_plugin_or_point_file_is_another_sampler_in_every_key(tmp_path):
+    """Resumed renders, cached references and saved studies are keyed by a user's
+    sampler code and point file too: editing either must not reuse old results."""
+    from mcrt.analysis.pass_plan import plan_passes
+    from mcrt.analysis.reference import reference_key
+    from mcrt.analysis.study.config import parse_config
+    from mcrt.analysis.study.store import study_key
+    from mcrt.cli.render_cmd import render_key
+    from mcrt.core.sampling import sampler_fingerprint
+    from mcrt.samplers.point_sources import jittered_sets
+
+    assert sampler_fingerprint("jittered") == ""  # ours: the versions key them
+    points = tmp_path / "sets.npy"
+    np.save(points, jittered_sets(32, 16, np.random.default_rng(0)).astype(np.float32))
+    plugin = write_plugin(tmp_path, GENERATOR_PLUGIN, "edited")
+    plugins.load_plugin(plugin)
+    scene = str(ROOT / "scenes" / "checkerboard.xml")
+    config = parse_config({"spp": [16, 32], "seeds": 2, "reference": {"spp": 128},
+                           "samplers": ["edited", {"name": "pointset",
+                                                   "params": {"filename": str(points)}}],
+                           "scenes": [{"path": scene}]})
+
+    def keys() -> tuple[str, ...]:
+        return (render_key(scene, {}, {}, "edited", 4, 0, 1, sampler_params="{}"),
+                render_key(scene, {}, {}, "pointset", 16, 0, 1,
+                           sampler_params=f'{{"filename": "{points}"}}'),
+                reference_key(scene, {}, "edited", 0, plan_passes("edited", 16, 64)),
+                study_key(config))
+
+    before = keys()
+    plugins.unload_plugin(plugin)
+    plugin.write_text(plugin.read_text().replace("return rng.random", "return 0.5 * rng.random"))
+    plugins.load_plugin(plugin)
+    np.save(points, jittered_sets(32, 16, np.random.default_rng(1)).astype(np.float32))
+    after = keys()
+    assert all(a != b for a, b in zip(before, after)), (before, after)

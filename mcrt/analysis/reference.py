@@ -74,7 +74,7 @@ from ..core.filtered import FilteredStats
 from ..core.job import Interrupted, Job, content_key, run_job
 from ..core.progress import Progress
 from ..core.render import StatsRender, render_stats
-from ..core.sampling import check_sampler_name, make_sampler
+from ..core.sampling import check_sampler_name, make_sampler, sampler_fingerprint
 from ..core.scene_files import SceneBundle, SceneSource, scene_digest
 from ..core.stats import PixelStats
 from ..core.trace import film_grid_size
@@ -119,6 +119,7 @@ def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: 
         "spp": plan.requested_spp,
         "plan": [plan.pass_spp, plan.full_passes, list(plan.tail)],
         "lane_budget": LANE_BUDGET,
+        **({"sampler_code": code} if (code := sampler_fingerprint(sampler)) else {}),
     }
 
 

@@ -25,7 +25,7 @@ from ..core.executor import cluster_address
 from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
-from ..core.sampling import check_sampler_name, make_sampler, sampler_name
+from ..core.sampling import check_sampler_name, make_sampler, sampler_fingerprint, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
 from ..core.scene_files import scene_digest
 from ..core.trace import film_grid_size
@@ -429,11 +429,14 @@ def _check_memory(scene, settings) -> None:
 
 def render_key(scene: str, params: dict[str, str], overrides: dict[str, bool], sampler: str,
                spp: int, seed: int, passes: int | None, **settings) -> str:
-    """Identity of a render for resuming: the scene's content and every setting."""
+    """Identity of a render for resuming: the scene's content and every setting
+    (and a user's sampler code, see :func:`sampler_fingerprint`)."""
+    given = settings.get("sampler_params")  # a dict, or the EXR header's JSON text
+    code = sampler_fingerprint(sampler, json.loads(given) if isinstance(given, str) else given)
     return content_key({"kind": "render", "scene": scene_digest(scene, params),
                         "params": sorted(params.items()), "effects": sorted(overrides.items()),
                         "sampler": sampler, "spp": spp, "seed": seed, "passes": passes,
-                        "settings": settings})
+                        "settings": settings, **({"sampler_code": code} if code else {})})
 
 
 def check_output_space(directory: Path, scene) -> None:

@@ -62,6 +62,24 @@ def check_sampler_name(name: str) -> str:
     return name
 
 
+def sampler_fingerprint(name: str, params: dict[str, Any] | None = None) -> str:
+    """What identifies a user's sampler besides its name and parameters: a digest
+    of its code or generator (:attr:`SamplerInfo.fingerprint`) and of a point file
+    its ``filename`` parameter names; "" for mcrt's and Mitsuba's samplers (the
+    versions in every key cover them). Results keyed with it are not resumed or
+    reused after the plugin or the point file changed."""
+    from ..samplers import registry
+    from ..samplers.point_sources import file_digest
+
+    parts = []
+    if name in registry.names():
+        parts.append(registry.info(name).fingerprint)
+    filename = (params or {}).get("filename")
+    if filename:
+        parts.append(file_digest(str(filename)))
+    return "/".join(p for p in parts if p)
+
+
 def did_you_mean(name: str, choices: Iterable[str]) -> str:
     """``" (did you mean 'x'?)"`` for the choice closest to a mistyped ``name``
     (case and spaces aside), or ``""`` when none is close."""

@@ -152,6 +152,7 @@ class FileSource:
         self._tables = read_point_file(self.path)
         stat = self.path.stat()
         self.key = ("file", str(self.path), stat.st_mtime_ns, stat.st_size)
+        self.digest = file_digest(self.path)
 
     def describe(self) -> str:
         return str(self.path)
@@ -163,6 +164,14 @@ class FileSource:
         if n not in self._tables:
             raise count_mismatch(self.describe(), n, self.counts())
         return self._tables[n]
+
+
+def file_digest(path: str | Path) -> str:
+    """Digest of a point file's bytes ("" if it cannot be read)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:20]
+    except OSError:
+        return ""
 
 
 def count_mismatch(where: str, n: int, counts: tuple[int, ...] | None) -> SamplerError:

@@ -63,6 +63,9 @@ class SamplerInfo:
     claims: frozenset[str] = frozenset()
     origin: str = ""
     example: Callable[[int], dict[str, Any]] | None = field(default=None, compare=False)
+    #: A digest of a user's sampler code or points ("" for mcrt's and Mitsuba's, whose
+    #: versions key every result already): another version is another sampler.
+    fingerprint: str = ""
 
     def example_params(self, spp: int) -> dict[str, Any]:
         """Parameters that let ``mi.load_dict`` build this sampler on its own."""
@@ -183,12 +186,14 @@ def _register_one(name: str) -> None:
 
 def register_class(cls: type, name: str | None = None, *, origin: str = "",
                    example: Callable[[int], dict[str, Any]] | None = None,
-                   rebuild: Callable[[], None] | None = None, kind: str = "user") -> str:
+                   rebuild: Callable[[], None] | None = None, kind: str = "user",
+                   fingerprint: str = "") -> str:
     """Register a ``mi.Sampler`` subclass (constructor ``cls(props)``) under ``name``
     (default: its ``plugin_name``); returns the name.
 
     ``rebuild`` re-creates and re-registers the class after a variant switch
-    (plugin files pass one; see :mod:`mcrt.plugins`).
+    (plugin files pass one; see :mod:`mcrt.plugins`). ``fingerprint`` defaults to
+    a digest of the plugin file, else of the class's source.
     """
     if not (isinstance(cls, type) and issubclass(cls, mi.Sampler)):
         raise SamplerError(f"register_class: {cls!r} is not a subclass of mi.Sampler "
@@ -206,12 +211,31 @@ def register_class(cls: type, name: str | None = None, *, origin: str = "",
         _SOURCE_ORIGINS.add(source.origin)
     if getattr(cls, "plugin_name", name) != name:
         cls = type(cls.__name__, (cls,), {"plugin_name": name})
-    _add(SamplerInfo(name, kind, _summary_of(cls), claims_of(cls), origin or cls.__module__,
-                     example if example is not None else getattr(cls, "example_params", None)),
+    origin = origin or cls.__module__
+    if kind != "mcrt" and not fingerprint:
+        fingerprint = code_fingerprint(cls, origin)
+    _add(SamplerInfo(name, kind, _summary_of(cls), claims_of(cls), origin,
+                     example if example is not None else getattr(cls, "example_params", None),
+                     fingerprint),
          cls)
     if rebuild is not None:
         _REBUILDS[name] = rebuild
     return name
+
+
+def code_fingerprint(cls: type, origin: str) -> str:
+    """Digest of a user's sampler code: its plugin file's bytes, else its class's
+    source (classes of a notebook or script), else "" (no source to read)."""
+    import hashlib
+    import inspect
+    from pathlib import Path
+
+    try:
+        data = Path(origin).read_bytes() if origin and Path(origin).is_file() \
+            else inspect.getsource(cls).encode()
+    except (OSError, TypeError):
+        return ""
+    return hashlib.sha256(data).hexdigest()[:20]
 
 
 def _shipped_classes() -> list[type]:

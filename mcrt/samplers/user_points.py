@@ -45,9 +45,11 @@ def points_class(name: str, *, points: Callable | None = None, file: str | Path 
                      "claims": claims, "summary": summary, "__doc__": summary,
                      "example_params": staticmethod(lambda spp: {})})
 
+    fingerprint = source.digest
+
     def rebuild() -> None:
-        registry.register_class(make(), name, origin=origin,
-                                rebuild=rebuild, kind="points")
+        registry.register_class(make(), name, origin=origin, rebuild=rebuild, kind="points",
+                                fingerprint=fingerprint)
 
     rebuild()
     return name

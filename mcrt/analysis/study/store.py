@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ...core.job import Checkpoint, content_key
+from ...core.sampling import sampler_fingerprint
 from ...core.scene_files import scene_digest
 from ...errors import McrtError
 from .config import StudyConfig, cell_keys
@@ -48,8 +49,10 @@ def study_key(config: StudyConfig) -> str:
     study = config.as_dict()
     for key in ("name", "description", "config_path", "baseline"):
         study.pop(key, None)
+    code = {s.label: c for s in config.samplers if (c := sampler_fingerprint(s.name, s.params))}
     return content_key({"kind": "study", "format": STATE_FORMAT, "study": study,
-                        "scenes": [scene_digest(s.path, s.params) for s in config.scenes]})
+                        "scenes": [scene_digest(s.path, s.params) for s in config.scenes],
+                        **({"sampler_code": code} if code else {})})
 
 
 def reference_fingerprint(mean: np.ndarray, standard_error: np.ndarray) -> str:
