@@ -28,7 +28,7 @@ from mcrt.analysis.check import FULL, QUICK, Subject, run_checks
 from mcrt.analysis.check_claims import EDGE_TOL, check_stratified, one_per_cell
 from mcrt.analysis.check_stats import check_unbiasedness
 from mcrt.samplers import registry
-from mcrt.samplers._hash import hash_extend, unit_float
+from mcrt.samplers.kit import hash_extend, unit_float
 from mcrt.samplers.point_sources import jittered_sets
 
 
