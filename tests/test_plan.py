@@ -390,3 +390,27 @@ def test_render_follows_the_plan_and_records_it(tmp_path, capsys):
                          "--effect", "motion=off", "-o", str(out))
     _, meta = read_exr(out.with_suffix(".exr"))
     assert meta["effects"] == "aa" and meta["passes"] == 1
+
+
+@pytest.mark.parametrize("integrator", [
+    '<integrator type="path"><integer name="max_depth" value="2"/></integrator>',
+    '<integrator type="path"><integer name="maxDepth" value="2"/></integrator>',  # Mitsuba 0.6
+])
+def test_an_authored_depth_limit_is_an_upper_bound(tmp_path, integrator):
+    """glossy.xml wants max_depth 3 for reflections of other objects; a scene that
+    says max_depth 2 (direct light only) keeps 2, and the plan says what that
+    leaves out; forcing indirect light on such a scene is refused."""
+    text = (EFFECT_SCENES / "glossy.xml").read_text()
+    text = text.replace('<integrator type="direct"/>', integrator)
+    if "maxDepth" in integrator:
+        text = text.replace('version="3.0.0"', 'version="0.6.0"')
+    path = tmp_path / "glossy_depth2.xml"
+    path.write_text(text)
+    plan = plan_scene(path).plan
+    assert plan.integrator["max_depth"] == 2
+    assert "capped at the scene's max_depth 2" in plan.integrator_reason
+    with pytest.raises(McrtError, match="indirect=on: the scene's integrator sets max_depth 2"):
+        plan_scene(path, overrides={"indirect": True})
+    deeper = tmp_path / "glossy_depth5.xml"
+    deeper.write_text(text.replace('value="2"', 'value="5"'))
+    assert plan_scene(deeper).plan.integrator["max_depth"] == 5  # a bound, not a target

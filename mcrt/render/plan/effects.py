@@ -244,7 +244,11 @@ def decide_indirect(d: Decisions, facts: ScanFacts, author: AuthoredIntegrator) 
     else:
         reason = f"{scan.reflecting_shapes} reflecting shapes and a path integrator of " \
                  f"max_depth {depth}"
-    d.decide("indirect", author.deep and interreflect, reason)
+    limit = author.depth_limit
+    d.decide("indirect", author.deep and interreflect, reason,
+             None if limit is None or limit > 2 else
+             f"the scene's integrator sets max_depth {limit}, which stops at direct light; "
+             f"give it a larger max_depth to render indirect light")
 
 
 def _decide_authored_indirect(d: Decisions, scan: Scan, author: AuthoredIntegrator,

@@ -29,7 +29,19 @@ def choose_integrator(facts: ScanFacts, author: AuthoredIntegrator,
         spec, reason = _direct(facts, author, d)
     if "hide_emitters" in author.props:
         spec["hide_emitters"] = bool(scalar(author.props, "hide_emitters"))
-    return spec, reason
+    return _capped(spec, reason, author.depth_limit)
+
+
+def _capped(spec: IntegratorSpec, reason: str, limit: int | None) -> tuple[IntegratorSpec, str]:
+    """The plan's integrator within the author's ``max_depth`` (an upper bound):
+    a deeper plan is cut to it, and the reason says what that leaves out."""
+    depth = int(spec.get("max_depth", 2))  # direct lighting: depth 2
+    if limit is None or 0 <= depth <= limit:
+        return spec, reason
+    capped: IntegratorSpec = {**spec, "max_depth": limit}
+    lost = ("reflected objects are not rendered, only direct light" if limit <= 2 else
+            f"paths end after {limit - 1} bounces")
+    return capped, f"{reason}; capped at the scene's max_depth {limit}: {lost}"
 
 
 def reflection_bounces(facts: ScanFacts, d: Decisions) -> int:

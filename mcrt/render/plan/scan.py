@@ -197,6 +197,14 @@ class AuthoredIntegrator:
             return integer(self.props, "max_depth")
         return DEFAULT_MAX_DEPTH.get(self.kind, -1)
 
+    @property
+    def depth_limit(self) -> int | None:
+        """The smallest ``max_depth`` the author wrote (>= 0) on an integrator that
+        traces light, or None: an upper bound the plan never exceeds."""
+        written = [leaf.max_depth for leaf in self.leaves()
+                   if "max_depth" in leaf.props and leaf.max_depth >= 0]
+        return min(written) if written else None
+
     def leaves(self) -> list[AuthoredIntegrator]:
         """The integrators that trace light: this one, or those it wraps."""
         if not self.nested:
