@@ -317,7 +317,7 @@ def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
             local.close()
 
     try:
-        with pytest.raises(McrtError, match="lost the Dask cluster") as lost:
+        with pytest.raises(McrtError, match="lost the Dask scheduler") as lost:
             get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, executor=executor,
                           on_pass=close_cluster)
         assert "\n" not in str(lost.value) and "run the same command again" in str(lost.value)

@@ -7,27 +7,37 @@
   scheduler, started with ``dask scheduler`` / ``dask worker --nthreads 1``,
   dask-jobqueue (SLURM, PBS, ...) or a Kubernetes operator. Workers need mcrt
   installed, not the client's files: a job's scenes travel as
-  :class:`~mcrt.core.scene_files.SceneBundle` (scattered once per worker, keyed
-  by content), and workers keep loaded scenes and compiled kernels between tasks.
+  :class:`~mcrt.core.scene_files.SceneBundle` (keyed by content, sent to each
+  worker once), and workers keep loaded scenes and compiled kernels between tasks.
 
 Tasks are deterministic and their results are folded in task order on the
 client (:func:`~mcrt.core.job.run_job`), so a result does not depend on which
-worker ran what, or when. A worker that dies has its tasks run again elsewhere
-(same result). A scheduler that cannot be reached, or that goes away, is a
-one-line :class:`~mcrt.errors.McrtError`; the folded tasks stay checkpointed.
+worker ran what, or when. While the scheduler lives, any number of workers may
+die, all of them at once too: the inputs the tasks share are tasks that carry
+their value (not scattered data, which dies with the last worker holding it), so
+Dask makes them again, and it runs the lost tasks again (same results); a task
+Dask gives up on (its workers kept dying) is submitted again a few times; with
+no worker left the job waits for one (:data:`WORKER_WAIT`), then fails saying
+what was lost. A scheduler that cannot be reached, or that goes away, is a
+one-line :class:`~mcrt.errors.McrtError` (Dask's own log lines and tracebacks are
+silenced while mcrt uses the client); the folded tasks stay checkpointed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
+import time
 import uuid
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import CancelledError
 from typing import Any, TypeVar
 
-from distributed import Client, LocalCluster, wait
+from distributed import Client, Future, KilledWorker, LocalCluster, wait
+from distributed.client import ClosedClientError
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..errors import McrtError
@@ -43,13 +53,31 @@ CONNECT_TIMEOUT = 10.0
 #: Seconds between checks that the scheduler is still there while tasks run.
 POLL_SECONDS = 2.0
 
-#: How often a task is retried after its worker died (Dask reschedules it).
+#: How often Dask retries a task that raised (``Client.submit``'s ``retries``).
 RETRIES = 3
+
+#: How often a task is submitted again after Dask gave up on it (its workers kept
+#: dying: ``KilledWorker``) or cancelled it while the scheduler lives.
+RESUBMITS = 3
+
+#: Seconds to wait for a worker when none is left (``$MCRT_CLUSTER_WORKER_WAIT``).
+WORKER_WAIT = 300.0
 
 _LOCAL = re.compile(r"^local(?::(\d+))?$")
 
 #: What a task's result raises when the scheduler or the connection to it is gone.
-_LOST = (OSError, TimeoutError, CancelledError)  # (CommClosedError is an OSError)
+_LOST = (OSError, TimeoutError, CancelledError,  # (CommClosedError is an OSError)
+         ClosedClientError)
+
+#: The states of a future that :meth:`DaskExecutor.map` takes in (not pending, not lost).
+_DONE = ("finished", "error", "cancelled")
+
+#: Why Dask cancels every future when the scheduler went away.
+_SCHEDULER_GONE = ("scheduler-connection-lost",)
+
+#: Loggers (and their children) silenced while an executor is open, and how.
+_SILENCED = ("distributed", "tornado")
+_SILENT = logging.CRITICAL + 1
 
 
 class WorkerSetup(WorkerPlugin):
@@ -86,17 +114,23 @@ class DaskExecutor:
     """The executor interface (``map``) over a ``distributed.Client``."""
 
     def __init__(self, client: Client, cluster: LocalCluster | None = None,
-                 address: str = "", variant: str = "", threads: int | None = None) -> None:
+                 address: str = "", variant: str = "", threads: int | None = None,
+                 quiet: _Quiet | None = None) -> None:
         self.client, self.cluster, self.address = client, cluster, address
-        self._held: dict[str, Any] = {}  # scattered shared inputs, by content
+        self._held: dict[str, Future] = {}  # shared inputs, by content (see _input)
         self._variant, self._threads = variant, threads
         self._plugins: tuple | None = None  # the plugin state the workers have
+        self._quiet = quiet or _Quiet()
+        self._workers = 0                   # workers last seen (for messages)
+        self._none_since: float | None = None  # when the last worker was seen to go
+        self._noted = 0.0                   # when the last "waiting for workers" note went
         if variant:
             self._setup_workers()
 
     def _setup_workers(self) -> None:
         """(Re-)register :class:`WorkerSetup` when the user's samplers changed since
-        the workers were set up (a study's plugins load after ``--cluster`` connects)."""
+        the workers were set up (a study's plugins load after ``--cluster`` connects).
+        Workers that join later (a restarted one) run it when they register."""
         from .. import plugins
 
         key = plugins.state_key()
@@ -106,38 +140,52 @@ class DaskExecutor:
             self.client.register_plugin(WorkerSetup(self._variant, self._threads,
                                                     plugins.worker_state()))
         except _LOST as error:
-            raise self._lost(error) from None
+            raise self._lost_scheduler(error) from None
         self._plugins = key
 
     @classmethod
     def connect(cls, address: str) -> DaskExecutor:
-        """Start ``local[:N]`` or connect to a scheduler; one-line errors."""
+        """Start ``local[:N]`` or connect to a scheduler; one-line errors. Dask's
+        own log records stay silent while the executor is open (see :class:`_Quiet`)."""
         import mitsuba as mi
 
         variant = mi.variant() or "llvm_ad_rgb"
         local = _LOCAL.match(address)
+        if not local and "://" not in address:
+            raise McrtError(f"--cluster {address!r}: expected 'local', 'local:N' or a scheduler "
+                            f"address such as tcp://HOST:8786")
         if local:
             cores = os.cpu_count() or 1
             workers = int(local.group(1) or cores)
             if workers < 1:
                 raise McrtError(f"--cluster {address}: a local cluster needs at least 1 worker")
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address="127.0.0.1:0",  # this machine only
-                                   silence_logs=logging.ERROR)
-            client = Client(cluster)
-            log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,
-                     max(1, cores // workers))
-            return cls(client, cluster, address, variant, max(1, cores // workers))
-        if "://" not in address:
-            raise McrtError(f"--cluster {address!r}: expected 'local', 'local:N' or a scheduler "
-                            f"address such as tcp://HOST:8786")
+        quiet = _Quiet()
         try:
-            timeout = float(os.environ.get("MCRT_CLUSTER_TIMEOUT") or CONNECT_TIMEOUT)
-            client = Client(address, timeout=timeout)
-        except (OSError, TimeoutError, ValueError) as error:
-            raise McrtError(f"cannot reach the Dask scheduler at {address} "
-                            f"({_first_line(error)})") from None
-        return cls(client, None, address, variant, None)
+            if local:
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address="127.0.0.1:0",  # this machine only
+                                       silence_logs=logging.ERROR)
+                client = Client(cluster)
+                quiet.apply()  # the loggers made while the cluster started
+                log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,
+                         max(1, cores // workers))
+                executor = cls(client, cluster, address, variant, max(1, cores // workers),
+                               quiet)
+                executor._workers = workers
+                return executor
+            try:
+                timeout = float(os.environ.get("MCRT_CLUSTER_TIMEOUT") or CONNECT_TIMEOUT)
+                client = Client(address, timeout=timeout)
+            except (OSError, TimeoutError, ValueError) as error:
+                raise McrtError(f"cannot reach the Dask scheduler at {address} "
+                                f"({_first_line(error)})") from None
+            executor = cls(client, None, address, variant, None, quiet)
+            with contextlib.suppress(*_LOST):
+                executor._workers = len(client.nthreads())
+            return executor
+        except BaseException:
+            quiet.restore()
+            raise
 
     def status(self) -> str:
         """``workers B/N busy``: workers running a task, of all workers."""
@@ -145,71 +193,269 @@ class DaskExecutor:
             processing = self.client.processing()
         except Exception:  # noqa: BLE001 - a progress note must never fail a job
             return ""
+        if not processing:
+            return "no workers: waiting for some"
+        self._workers = len(processing)
         busy = sum(1 for tasks in processing.values() if tasks)
         return f"workers {busy}/{len(processing)} busy"
 
     def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
             shared: dict[str, Any] | None = None,
             name: str = "") -> Iterator[tuple[int, R]]:
+        """Submit the tasks, yield their results as they come.
+
+        Shared inputs are tasks that carry their value (:meth:`_input`), so Dask
+        makes them again wherever they were lost. Worker deaths are Dask's to
+        handle (it runs the tasks again); a task Dask gives up on
+        (``KilledWorker``) or cancels is submitted again, :data:`RESUBMITS` times
+        at most. With no worker left, the job waits :data:`WORKER_WAIT` seconds for
+        one (:meth:`_watch`). Only the scheduler's loss ends it at once."""
         if self._variant:
             self._setup_workers()  # plugins loaded since the last job
-        shared_futures = {key: self._scatter(value) for key, value in (shared or {}).items()}
         run = uuid.uuid4().hex[:8]
-        futures = {self.client.submit(fn, index, **shared_futures, pure=False, retries=RETRIES,
-                                      key=f"mcrt-{name or 'job'}-{run}-{index}"): index
-                   for index in range(start, tasks)}
-        pending = set(futures)
+        label = name or "job"
+        submitted: dict[Future, int] = {}
+        again: dict[int, int] = {}  # index: times submitted again
+
+        def submit(indices: list[int]) -> None:
+            inputs = {key: self._input(value) for key, value in (shared or {}).items()}
+            try:
+                for index in indices:
+                    suffix = f"-again{again[index]}" if index in again else ""
+                    future = self.client.submit(fn, index, **inputs, pure=False,
+                                                retries=RETRIES,
+                                                key=f"mcrt-{label}-{run}-{index}{suffix}")
+                    submitted[future] = index
+            except _LOST as error:
+                raise self._lost_scheduler(error) from None
+
         try:
-            while pending:
-                try:
-                    done, _ = wait(list(pending), timeout=POLL_SECONDS,
-                                   return_when="FIRST_COMPLETED")
-                except TimeoutError:  # nothing finished yet: is the scheduler still there?
-                    if self.client.status != "running":
-                        raise self._lost(ConnectionError("the scheduler went away")) from None
-                    continue
-                except _LOST as error:
-                    raise self._lost(error) from None
-                for future in sorted(done, key=futures.__getitem__):
-                    pending.discard(future)
-                    try:
-                        result = future.result()
-                    except _LOST as error:
-                        raise self._lost(error) from None
-                    yield futures[future], result
+            submit(list(range(start, tasks)))
+            while submitted:
+                redo: list[int] = []
+                for future in sorted(self._wait(submitted), key=submitted.__getitem__):
+                    if future.status not in _DONE:  # lost since (its worker died): made again
+                        continue
+                    index = submitted.pop(future)
+                    done, result = self._outcome(future, index, label, again,
+                                                 len(submitted) + len(redo) + 1)
+                    if done:
+                        yield index, result
+                    else:
+                        redo.append(index)
+                if redo:
+                    submit(redo)
         finally:
-            for future in futures:
+            for future in submitted:
                 if not future.done():
                     future.cancel()
 
-    def _scatter(self, value: Any) -> Any:
-        """A shared input, on every worker once (a scene goes as its files, once
-        per content digest). Scattered data stays held until :meth:`close`: a
-        job's next tasks may need it again, and releasing it while another job
-        scatters the same content would lose it under them."""
-        key = value.digest if isinstance(value, SceneSource) and value.digest else None
-        if key is not None and key in self._held:
-            return self._held[key]
+    def _wait(self, submitted: dict[Future, int]) -> list[Future]:
+        """The futures that finished, erred or were cancelled (at least one),
+        watching the scheduler and the workers while none did. (A future whose
+        result was lost with its worker is ``lost`` until Dask made it again.)"""
+        while True:
+            try:
+                wait(list(submitted), timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:  # nothing finished for a while: is anyone there?
+                self._watch(len(submitted))
+                continue
+            except CancelledError:  # some were cancelled: _outcome says why
+                pass
+            except _LOST as error:
+                raise self._lost_scheduler(error) from None
+            done = [future for future in submitted if future.status in _DONE]
+            if done:
+                self._workers_back()
+                return done
+
+    def _outcome(self, future: Future, index: int, label: str, again: dict[int, int],
+                 pending: int) -> tuple[bool, Any]:
+        """``(True, result)`` for a task done; ``(False, None)`` for one to submit
+        again (its workers kept dying, or Dask cancelled it while the scheduler
+        lives); the task's own error is raised as it is. ``pending``: the job's
+        tasks not yet done, for messages."""
+        if future.status == "error":
+            error = future.exception()
+            if not isinstance(error, KilledWorker):
+                future.result()  # the task's own error, with its traceback
+            deaths = getattr(error, "allowed_failures", 0) + 1
+            why = f"Dask gave up on it after {deaths} of its workers died running it"
+        else:
+            while True:
+                try:  # (lost with its worker since the status was read: Dask makes it again)
+                    return True, future.result(timeout=self._worker_wait() + POLL_SECONDS)
+                except TimeoutError:
+                    self._watch(pending)
+                except CancelledError as error:
+                    reason = getattr(error, "reason", "") or "for no reason given"
+                    if reason in _SCHEDULER_GONE or self.client.status != "running":
+                        raise self._lost_scheduler(error) from None
+                    why = f"Dask cancelled it ({reason})"
+                    break
+                except _LOST as error:
+                    raise self._lost_scheduler(error) from None
+        count = again[index] = again.get(index, 0) + 1
+        if count > RESUBMITS:
+            times = f"{count} time{'s' if count > 1 else ''}"
+            raise McrtError(f"task {index} of job {label} on the Dask cluster at "
+                            f"{self.address or 'local'}: {why} (submitted {times}; does it "
+                            f"crash its worker or run out of memory?); the work finished so far "
+                            f"is kept: run the same command again, with or without --cluster, "
+                            f"to resume")
+        log.info("task %d of job %s: %s; submitting it again (%d of %d)", index, label, why,
+                 count, RESUBMITS)
+        return False, None
+
+    def _workers_back(self) -> None:
+        """Tasks finish (or workers are there) again after a time without workers."""
+        if self._none_since is not None:
+            self._none_since = None
+            log.info("Dask workers at %s again: the lost tasks run again",
+                     self.address or "local")
+
+    @staticmethod
+    def _worker_wait() -> float:
+        return float(os.environ.get("MCRT_CLUSTER_WORKER_WAIT") or WORKER_WAIT)
+
+    def _watch(self, pending: int) -> None:
+        """Nothing finished for a while: the scheduler gone is a
+        :class:`McrtError` at once; no workers is a wait for some
+        (:data:`WORKER_WAIT` seconds, ``$MCRT_CLUSTER_WORKER_WAIT``), with notes,
+        and then a :class:`McrtError` saying what was lost."""
+        if self.client.status != "running":
+            raise self._lost_scheduler(ConnectionError("the connection to it was lost"))
+        try:
+            workers = len(self.client.nthreads())
+        except _LOST as error:
+            raise self._lost_scheduler(error) from None
+        now = time.monotonic()
+        if workers:
+            self._workers = workers
+            self._workers_back()
+            return
+        wait_for = self._worker_wait()
+        lost = "the one Dask worker" if self._workers == 1 else \
+            f"all {self._workers or 'the'} Dask workers"
+        if self._none_since is None:
+            self._none_since = self._noted = now
+            log.warning("%s at %s died; waiting up to %g s for workers (%d task%s to do)",
+                        lost, self.address or "local", wait_for, pending,
+                        "s" if pending > 1 else "")
+        elif now - self._none_since > wait_for:
+            raise McrtError(f"{lost} at {self.address or 'local'} died and none came back "
+                            f"within {wait_for:g} s; {pending} task{'s' if pending > 1 else ''} "
+                            f"lost; the work finished so far is kept: run the same command "
+                            f"again, with or without --cluster, to resume")
+        elif now - self._noted >= 60:
+            self._noted = now
+            log.warning("still no Dask workers at %s after %.0f s (waiting up to %g s)",
+                        self.address or "local", now - self._none_since, wait_for)
+
+    def _input(self, value: Any) -> Future:
+        """A shared input as a task that returns it: the task carries the value (a
+        scene as its files' bundle), so Dask runs it again wherever the input was
+        lost (every worker holding it died); each worker gets it once, from a
+        worker that has it. Held, by content, until :meth:`close`: a job's next
+        tasks may need it again, and so may the next job."""
+        if isinstance(value, SceneSource) and value.digest:
+            content = f"mcrt-scene-{value.digest}"
+        else:
+            from dask.base import tokenize
+
+            content = f"mcrt-input-{tokenize(value)}"
+        held = self._held.get(content)
+        if held is not None and held.status != "cancelled":
+            return held
         if isinstance(value, SceneSource):
             value = value.bundle()
-            log.debug("sending scene %s to the workers", describe(value))
-        try:
-            future = self.client.scatter(value, broadcast=True, hash=True)
-        except _LOST as error:
-            raise self._lost(error) from None
-        self._held[key or future.key] = future
+            log.debug("sending scene %s to the cluster", describe(value))
+        # cancelled (its scheduler restarted?): a new key, in case the old one lingers
+        key = content if held is None else f"{content}-{uuid.uuid4().hex[:8]}"
+        with warnings.catch_warnings():  # "large graph": carrying the value is the point
+            warnings.simplefilter("ignore", UserWarning)
+            try:
+                future = self.client.submit(_identity, value, key=key, pure=False)
+            except _LOST as error:
+                raise self._lost_scheduler(error) from None
+        self._held[content] = future
         return future
 
-    def _lost(self, error: BaseException) -> McrtError:
-        return McrtError(f"lost the Dask cluster at {self.address or 'local'} "
-                         f"({_first_line(error)}); the work finished so far is kept: run the "
-                         f"same command again, with or without --cluster, to resume")
+    def _lost_scheduler(self, error: BaseException) -> McrtError:
+        """The one-line error of a scheduler gone (or the connection to it)."""
+        why = "the connection to it was lost" if isinstance(
+            error, (CancelledError, ClosedClientError)) else _first_line(error)
+        return McrtError(f"lost the Dask scheduler at {self.address or 'local'} ({why}); the "
+                         f"work finished so far is kept: run the same command again, with or "
+                         f"without --cluster, to resume")
 
     def close(self) -> None:
         self._held.clear()
-        self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        try:
+            self.client.close()
+            if self.cluster is not None:
+                self.cluster.close()
+        finally:
+            self._quiet.restore()
+
+
+def _identity(value: Any) -> Any:
+    """A shared input's task: its value, carried in the task itself."""
+    return value
+
+
+class _NoAllExit(logging.Filter):
+    """Drops asyncio's "Task exception was never retrieved" about Dask's internal
+    ``AllExit`` (a result fetch abandoned after its worker died: nothing to report,
+    and logged whenever the garbage collector gets to it, even after :meth:`close`)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        return type(error).__name__ != "AllExit" or \
+            not type(error).__module__.startswith("distributed")
+
+
+class _Quiet:
+    """Dask's log records off (``distributed.*``, ``tornado``) while mcrt uses a
+    client, and back as they were when it closes: losing workers is expected
+    and handled, and the scheduler's loss is mcrt's one-line error, so neither
+    should print Dask's log lines and tracebacks. Counted: the levels come
+    back when the last open executor closes."""
+
+    _open = 0
+    _saved: dict[str, int] = {}
+
+    def __init__(self) -> None:
+        self._active = False
+        asyncio_log = logging.getLogger("asyncio")
+        if not any(isinstance(f, _NoAllExit) for f in asyncio_log.filters):
+            asyncio_log.addFilter(_NoAllExit())  # for good: see _NoAllExit
+        self.apply()
+
+    def apply(self) -> None:
+        """Silence every Dask logger that exists now (loggers made later inherit)."""
+        cls = type(self)
+        if not self._active:
+            self._active = True
+            cls._open += 1
+        names = [name for name in list(logging.root.manager.loggerDict)
+                 if name.split(".")[0] in _SILENCED]
+        for name in {*names, *_SILENCED}:
+            logger = logging.getLogger(name)
+            if logger.level != _SILENT:
+                cls._saved.setdefault(name, logger.level)
+                logger.setLevel(_SILENT)
+
+    def restore(self) -> None:
+        cls = type(self)
+        if not self._active:
+            return
+        self._active = False
+        cls._open -= 1
+        if cls._open == 0:
+            for name, level in cls._saved.items():
+                logging.getLogger(name).setLevel(level)
+            cls._saved.clear()
 
 
 def _first_line(error: BaseException) -> str:
