@@ -268,6 +268,10 @@ def test_state_round_trips_and_belongs_to_one_configuration(tmp_path, notes):
         other = load_config(_write(tmp_path / "c.toml", CONFIG.replace(*change)))
         assert study_key(other) != study_key(config), change
         assert StudyState.open(tmp_path / "out", other).cells == {}, change
+    # ... another study's state is moved aside, not replaced, and comes back for its own.
+    assert any("held the saved state of another study" in m for m in notes)
+    assert (tmp_path / "out" / f"{STATE_DIR}-{state.key[:16]}" / "state.npz").is_file()
+    assert StudyState.open(tmp_path / "out", config).cells.keys() == again.cells.keys()
 
     # A damaged state is ignored with a note, never a crash.
     state_file = tmp_path / "out" / STATE_DIR / "state.npz"
@@ -277,7 +281,6 @@ def test_state_round_trips_and_belongs_to_one_configuration(tmp_path, notes):
         state_file.write_bytes(damage)
         assert StudyState.open(tmp_path / "out", config).cells == {}, damage
     assert any("the work is done again" in m for m in notes)  # damaged: set aside
-    assert any("belongs to another job" in m for m in notes)
 
     # --restart deletes the saved state.
     state.add(_fake_cell("checkerboard", "jittered", 4), None, seconds=1.5)

@@ -6,20 +6,38 @@ configuration's content, the scenes' content and the software versions); a
 run with the same key takes the saved cells instead of rendering them again
 (the cells of a group, every sampler at one spp, finish together: the renders
 of an interrupted group are rendered again).
+
+Nothing saved is lost to another study, and one process at a time writes a
+report directory:
+
+* a saved state of another key (another variant, configuration, scene files or
+  versions) is never overwritten or deleted: :meth:`StudyState.open` moves it
+  aside to ``.mcrt-resume-<its key>`` with a note naming the command that made
+  it, and a later run with that key moves it back and resumes from it;
+* :meth:`StudyState.open` takes an exclusive ``flock`` on the report directory,
+  held until the state is closed or garbage-collected or the process ends (the
+  kernel drops it with the process, so a crash leaves no stale lock); another
+  process opening the same directory is refused at once with a one-line error
+  naming the directory and the holder (its PID and command line, from
+  ``/proc/locks`` where there is one). States opened in one process share the lock.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import os
+import shlex
 import shutil
+import time
+import weakref
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ...core.job import Checkpoint, content_key
+from ...core.job import CHECKPOINT_FORMAT, Checkpoint, content_key
 from ...core.sampling import sampler_fingerprint
 from ...core.scene_files import scene_digest
 from ...errors import McrtError
@@ -34,6 +52,9 @@ STATE_DIR = ".mcrt-resume"
 
 #: Version of the state's layout; a state of another format is ignored.
 STATE_FORMAT = 2
+
+#: Hex digits of its key that name a state set aside (``.mcrt-resume-<digits>``).
+ASIDE_DIGITS = 16
 
 
 def study_key(config: StudyConfig) -> str:
@@ -65,6 +86,22 @@ def reference_fingerprint(mean: np.ndarray, standard_error: np.ndarray) -> str:
     return digest.hexdigest()[:32]
 
 
+def study_command(config: StudyConfig, report_dir: str | os.PathLike[str]) -> str:
+    """The command line that runs ``config`` into ``report_dir`` in this process's
+    variant, with the plugin files loaded besides the configuration's own: what a
+    set-aside state's note tells to run ("" when the configuration has no file)."""
+    import mitsuba as mi
+
+    from ...plugins import command_words, loaded_plugins
+
+    if config.path is None:
+        return ""
+    variant = mi.variant() or "llvm_ad_rgb"
+    words = ["--variant", variant] if variant != "llvm_ad_rgb" else []
+    words += command_words(p for p in loaded_plugins() if p not in config.plugins)
+    return shlex.join(["mcrt", *words, "compare", str(config.path), "-o", str(report_dir)])
+
+
 class StudyState:
     """Finished cells of a study, saved after every cell so that a run can resume.
 
@@ -75,17 +112,23 @@ class StudyState:
     :class:`~mcrt.core.job.Checkpoint` (key and checksum checked on load; a
     damaged file is set aside and its cells measured again). The images are
     written before the state that refers to them, so a kill at any moment leaves
-    a consistent state.
+    a consistent state. ``state.npz`` records ``command``, the command line that
+    resumes it.
+
+    A state from :meth:`open` holds the report directory's lock until
+    :meth:`close` (or ``with``, or garbage collection, or the end of the process).
     """
 
-    def __init__(self, directory: str | os.PathLike[str], key: str):
+    def __init__(self, directory: str | os.PathLike[str], key: str, command: str = ""):
         self.directory = Path(directory)
         self.key = key
+        self.command = command
         self.cells: dict[tuple[str, str, int], dict[str, Any]] = {}
         self.references: dict[str, str] = {}
         self.seconds = 0.0
         self.runs = 0
         self.writable = True
+        self._unlock: weakref.finalize | None = None
 
     @property
     def path(self) -> Path:
@@ -93,16 +136,35 @@ class StudyState:
 
     @classmethod
     def open(cls, report_dir: str | os.PathLike[str], config: StudyConfig,
-             restart: bool = False) -> StudyState:
+             restart: bool = False, command: str | None = None) -> StudyState:
         """The saved state of ``config`` in ``report_dir``, or an empty one.
 
-        A state that is damaged or of another study (another :func:`study_key`)
-        is not used, with a note; ``restart`` deletes any saved state. Nothing is
-        written here: the directory is created by the first :meth:`add`.
+        Takes the report directory's lock first (creating the directory): a
+        directory another process holds is refused with a one-line
+        :class:`~mcrt.errors.McrtError`. A saved state of another study (another
+        :func:`study_key`) is moved aside with a note, never overwritten; one of
+        this study that an earlier run moved aside is moved back and resumed. A
+        damaged state is not used, with a note; ``restart`` deletes this study's
+        saved state (never another's). ``command`` (default
+        :func:`study_command`) is recorded with every save. No state file is
+        written here: the state's directory is created by the first :meth:`add`.
         """
-        state = cls(Path(report_dir) / STATE_DIR, study_key(config))
-        if restart:
-            state.clear()
+        report = Path(report_dir)
+        state = cls(report / STATE_DIR, study_key(config),
+                    study_command(config, report) if command is None else command)
+        report.mkdir(parents=True, exist_ok=True)
+        held = _lock_directory(report)
+        if held is not None:
+            state._unlock = weakref.finalize(state, _release, held)
+        try:
+            state._keep_other_study()
+            if restart:
+                state.clear()
+            else:
+                state._bring_back()
+        except BaseException:
+            state.close()
+            raise
         found = Checkpoint.load(state.path, state.key)
         if found is None:
             return state
@@ -120,6 +182,57 @@ class StudyState:
             state.cells.clear()
             state.references.clear()
         return state
+
+    def close(self) -> None:
+        """Release the report directory's lock (if this state holds it)."""
+        if self._unlock is not None:
+            self._unlock()
+
+    def __enter__(self) -> StudyState:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _keep_other_study(self) -> None:
+        """Move a saved state of another key to ``.mcrt-resume-<its key>`` (a fresh
+        name, never over a file), with a note saying how to resume it."""
+        saved = _saved(self.path)
+        if saved is None or saved["key"] == self.key:
+            return
+        target = _free_name(self.directory.parent, f"{STATE_DIR}-{saved['key'][:ASIDE_DIGITS]}")
+        try:
+            os.rename(self.directory, target)
+        except OSError as error:
+            raise McrtError(f"{self.directory} holds the saved state of another study, which "
+                            f"cannot be moved aside ({error.strerror}); move it away yourself "
+                            f"or write this study's report to another -o DIR") from None
+        how = (f"to resume it, run: {saved['job']}" if saved["job"] else
+               "the study that saved it (same configuration, scene files, variant and "
+               "versions) resumes from it")
+        log.warning("%s held the saved state of another study (%d cells): kept in %s; %s",
+                    self.directory, saved["cells"], target, how)
+
+    def _aside(self) -> list[Path]:
+        """This study's states set aside by earlier runs of other studies, newest first."""
+        found = [d for d in self.directory.parent.glob(f"{STATE_DIR}-{self.key[:ASIDE_DIGITS]}*")
+                 if (s := _saved(d / "state.npz")) is not None and s["key"] == self.key]
+        return sorted(found, key=lambda d: (d / "state.npz").stat().st_mtime, reverse=True)
+
+    def _bring_back(self) -> None:
+        """Without a state of its own in place, resume the newest one set aside."""
+        here = _saved(self.path)
+        aside = self._aside() if here is None or here["key"] != self.key else []
+        if not aside:
+            return
+        if self.directory.exists():  # no usable state in it (damaged, or images only): kept
+            if any(self.directory.iterdir()):
+                os.rename(self.directory, _free_name(self.directory.parent, f"{STATE_DIR}-unused"))
+            else:
+                self.directory.rmdir()
+        os.rename(aside[0], self.directory)
+        log.info("resuming from the saved state kept in %s (set aside when another study "
+                 "ran in %s)", aside[0], self.directory.parent)
 
     def _image_path(self, scene: str, label: str) -> Path:
         name = hashlib.sha256(f"{scene}\0{label}".encode()).hexdigest()[:16]
@@ -186,8 +299,148 @@ class StudyState:
     def save(self, seconds: float) -> None:
         """Write ``state.npz`` atomically (``seconds``: study time so far, all runs)."""
         Checkpoint({"runs": self.runs + 1, "seconds": seconds, "references": self.references,
-                    "cells": list(self.cells.values())}).save(self.path, self.key)
+                    "cells": list(self.cells.values())}).save(self.path, self.key,
+                                                              job=self.command)
 
     def clear(self) -> None:
-        """Delete the saved state (``--restart``)."""
-        shutil.rmtree(self.directory, ignore_errors=True)
+        """Delete this study's saved state, and its copies set aside (``--restart``);
+        another study's state is moved aside first, never deleted."""
+        self._keep_other_study()
+        for directory in [self.directory, *self._aside()]:
+            shutil.rmtree(directory, ignore_errors=True)
+
+
+# --------------------------------------------------------------------------- set aside
+
+
+def _saved(path: Path) -> dict[str, Any] | None:
+    """Key, command line and cell count of the intact-looking state file ``path``;
+    None if it is missing or unreadable (:meth:`Checkpoint.load` reports those)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            header = json.loads(str(data["header"]))
+            meta = json.loads(str(data["meta"]))
+    except Exception:  # missing, a directory, damaged
+        return None
+    if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT \
+            or not isinstance(header.get("key"), str):
+        return None
+    cells = meta.get("cells") if isinstance(meta, dict) else None
+    return {"key": header["key"], "job": str(header.get("job") or ""),
+            "cells": len(cells) if isinstance(cells, list) else 0}
+
+
+def _free_name(parent: Path, name: str) -> Path:
+    """``parent/name``, or with the time (and a count) added if that is taken."""
+    target = parent / name
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    count = 0
+    while target.exists() or target.is_symlink():
+        count += 1
+        target = parent / f"{name}-{stamp}" if count == 1 else parent / f"{name}-{stamp}-{count}"
+    return target
+
+
+# --------------------------------------------------------------------------- the lock
+
+#: Report directories locked by this process: (st_dev, st_ino) -> [descriptor, states].
+_HELD: dict[tuple[int, int], list[int]] = {}
+
+
+def _lock_directory(directory: Path) -> tuple[int, int] | None:
+    """Lock ``directory`` for this process (an exclusive ``flock`` on the directory
+    itself: no file is written, the kernel drops it when the process ends).
+
+    Refused (:class:`McrtError`) when another process holds it; None, with a
+    note, where the file system cannot lock. A directory this process holds
+    already is shared (counted; see :func:`_release`)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no flock
+        return None
+    try:
+        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError as error:
+        log.warning("cannot lock %s (%s): a second run writing into it would not be refused",
+                    directory, error.strerror)
+        return None
+    info = os.fstat(fd)
+    held = (info.st_dev, info.st_ino)
+    if held in _HELD:
+        os.close(fd)
+        _HELD[held][1] += 1
+        return held
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise McrtError(f"{directory} is in use by another study run ({_holder(info)}); one "
+                        f"run at a time writes a report directory: wait for it to end, or "
+                        f"give this one another -o DIR") from None
+    except OSError as error:
+        os.close(fd)
+        log.warning("cannot lock %s (%s): a second run writing into it would not be refused",
+                    directory, error.strerror)
+        return None
+    _HELD[held] = [fd, 1]
+    return held
+
+
+def _release(held: tuple[int, int]) -> None:
+    """One state of this process lets go of a directory; the last one unlocks it."""
+    entry = _HELD.get(held)
+    if entry is None:
+        return
+    entry[1] -= 1
+    if entry[1] <= 0:
+        del _HELD[held]
+        os.close(entry[0])
+
+
+def _forget_locks() -> None:
+    """In a forked child: close the inherited descriptors (the parent's lock must
+    end with the parent, not live on in its children)."""
+    for fd, _ in _HELD.values():
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _HELD.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_locks)
+
+
+def _holder(info: os.stat_result) -> str:
+    """Who holds the lock of the directory ``info`` describes: "PID n: its command
+    line" from ``/proc/locks`` (Linux), else "another process"."""
+    try:
+        lines = Path("/proc/locks").read_text().splitlines()
+    except OSError:
+        return "another process"
+    device = f"{os.major(info.st_dev):02x}:{os.minor(info.st_dev):02x}:{info.st_ino}"
+    pids = []
+    for line in lines:  # "1: FLOCK  ADVISORY  WRITE 4242 fe:00:2146865 0 EOF"
+        words = line.split()
+        if len(words) >= 6 and words[1] == "FLOCK" and words[5].endswith(f":{info.st_ino}"):
+            pids.append((words[5] == device, words[4]))
+    if not pids:
+        return "another process"
+    pid = max(pids)[1]
+    return f"PID {pid}: {_command_line(pid)}" if pid.isdigit() else "another process"
+
+
+def _command_line(pid: str) -> str:
+    """The command line of process ``pid`` (interpreter left out), shortened."""
+    try:
+        words = [w.decode(errors="replace")
+                 for w in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if w]
+    except OSError:
+        return "command unknown"
+    if len(words) > 1 and Path(words[0]).name.startswith("python"):
+        words = words[2:] if words[1] == "-m" else words[1:]  # python [-m] mcrt ...
+    if not words:
+        return "command unknown"
+    text = shlex.join([Path(words[0]).name, *words[1:]])
+    return text if len(text) <= 300 else text[:297] + "..."
