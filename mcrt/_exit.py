@@ -22,6 +22,18 @@ import os
 import sys
 import threading
 
+#: Set by :func:`out_of_memory`: the process ran out of memory.
+_out_of_memory = False
+
+
+def out_of_memory() -> None:
+    """The command ended because an allocation failed: :func:`leave` then skips
+    the ``atexit`` handlers but logging's flush. Dr.Jit's and Mitsuba's
+    clean-up crashed (SIGSEGV, after the one-line error) in a process whose
+    allocations had failed, and there is nothing left for them to save."""
+    global _out_of_memory
+    _out_of_memory = True
+
 
 def leave(code: int) -> None:
     """End the process now with exit status ``code``, after running the
@@ -36,7 +48,11 @@ def leave(code: int) -> None:
               if t is not threading.current_thread() and not t.daemon and t.is_alive()]
     if run_handlers is None or others:
         return
-    run_handlers()
+    if _out_of_memory:
+        if "logging" in sys.modules:
+            sys.modules["logging"].shutdown()
+    else:
+        run_handlers()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

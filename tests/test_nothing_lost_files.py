@@ -294,3 +294,144 @@ def test_periodic_checkpoints_stop_after_a_failure(tmp_path, caplog):
     for _ in range(3):
         store.save_periodic(Checkpoint({}, {}))
     assert len([r for r in caplog.records if "checkpoints are off" in r.getMessage()]) == 1
+
+
+# --------------------------------------------------------------------------- special files
+
+
+def _special(path: Path, kind: str) -> None:
+    """Put a FIFO, a socket, a directory or a link to a device at ``path``."""
+    import socket
+
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "socket":
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(path))
+        sock.close()  # the socket file stays
+    elif kind == "directory":
+        path.mkdir()
+    else:
+        path.symlink_to("/dev/null")
+
+
+def _one_error(code: int, err: str) -> str:
+    lines = [line for line in err.strip().splitlines() if not line.startswith("mcrt: note:")]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "socket", "directory", "device"])
+@pytest.mark.parametrize("where", [".img.exr.mcrt-resume.npz", "img.exr", "img.png",
+                                   ".ada.exr.mcrt-resume.npz", "ada_spp.png"])
+def test_special_files_at_a_render_s_paths_are_refused_up_front(tmp_path, capsys, monkeypatch,
+                                                                 kind, where):
+    """A FIFO (opening it for reading waited for ever: the render hung), a
+    socket, a directory or a device where ``mcrt render`` reads or writes its
+    checkpoint or an output: one line before any rendering, and the file is
+    left as it was."""
+    from mcrt.core import engine
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(engine, "trace_pass", lambda *a, **k: pytest.fail("rendered"))
+    scene = _tiny(tmp_path)
+    stem = "ada" if where.startswith((".ada", "ada")) else "img"
+    extra = ["--adaptive", "--spp", "16"] if stem == "ada" else ["--spp", "4"]
+    target = tmp_path / where
+    _special(target, kind)
+    code, _, err = run_cli(capsys, "-q", "render", str(scene), *extra, "-o", str(tmp_path / stem))
+    line = _one_error(code, err)
+    assert str(target.name) in line and "not a regular file" in line or \
+        "cannot overwrite" in line, line
+    assert os.path.lexists(target) and not (tmp_path / f"{stem}.exr.damaged").exists()
+
+
+@pytest.mark.parametrize("where", [".mcrt-resume/state.npz", ".mcrt-resume/images_x.npz",
+                                   ".mcrt-resume-0123/state.npz", "results.csv"])
+def test_a_fifo_in_a_study_s_folder_is_refused_up_front(tmp_path, capsys, monkeypatch, where):
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    config = tmp_path / "study.toml"
+    config.write_text(study_toml(CHECKERBOARD, name="s"))
+    fifo = tmp_path / "report" / where
+    fifo.parent.mkdir(parents=True)
+    os.mkfifo(fifo)
+    code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", str(tmp_path / "report"))
+    assert "FIFO (named pipe), not a regular file" in _one_error(code, err)
+    assert fifo.exists()
+
+
+def test_checkpoints_never_open_special_files(tmp_path, caplog):
+    """Every reader of mcrt's saved state (renders, references, studies, Poisson
+    tables) loads through Checkpoint.load: a FIFO there is not opened (that
+    waited for ever), not used, not renamed and not replaced."""
+    fifo = tmp_path / "state.npz"
+    os.mkfifo(fifo)
+    with caplog.at_level(logging.INFO, logger="mcrt"):
+        assert Checkpoint.load(fifo, "k") is None
+    assert f"{fifo} is a FIFO (named pipe), not a checkpoint: not used" in caplog.text
+    with pytest.raises(atomic.ImageIOError, match="FIFO"):
+        Checkpoint({"done": 1}).save(fifo, "k")
+    store = CheckpointStore([fifo, tmp_path / "cache.npz"], "k")
+    assert store.load() is None and store.save(Checkpoint({"done": 1})) == tmp_path / "cache.npz"
+    store.discard()
+    assert fifo.exists() and not (tmp_path / "cache.npz").exists()
+
+
+# --------------------------------------------------------------------------- unreachable checkpoints
+
+
+def test_a_checkpoint_no_command_can_resume_is_replaced_once(tmp_path, capsys, monkeypatch):
+    """An interrupted render leaves its checkpoint; the scene is then edited in a
+    comment only (its key changes: the scene's bytes are part of it). The same
+    command line can never resume that checkpoint again, so the next run says
+    so once, replaces it and removes it with its own when done; the run after
+    that has nothing to say (it used to be "the checkpoint of another render,
+    kept" on every run, for ever)."""
+    import mcrt.cli.render_cmd as render_cmd
+    from mcrt.core import engine
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(engine, "MAX_LANES_PER_PASS", 32 * 32 * 4)  # 16 spp: 4 passes
+    scene = _tiny(tmp_path)
+    args = ["render", "tiny.xml", "--spp", "16", "-o", "img"]
+    checkpoint = tmp_path / ".img.exr.mcrt-resume.npz"
+    real = render_cmd.render_film
+
+    def interrupted(*a, on_pass=None, **k):
+        def hook(index, count):
+            if index == 2:
+                raise KeyboardInterrupt
+            if on_pass is not None:
+                on_pass(index, count)
+        return real(*a, on_pass=hook, **k)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(render_cmd, "render_film", interrupted)
+        code, _, _ = run_cli(capsys, "-q", *args)
+    assert code == 130 and checkpoint.is_file()
+    scene.write_text(scene.read_text().replace("<scene", "<!-- lit from the left -->\n<scene", 1))
+
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0, err
+    assert err.count("is the checkpoint of this same command") == 1 and "replaced" in err
+    assert "checkpoint of another render" not in err and "resuming" not in err
+    assert not checkpoint.exists() and not list((tmp_path / "cache").rglob("*.npz"))
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0 and "checkpoint" not in err, err
+
+    # Another command line's checkpoint, or this one's made in another directory
+    # (its relative paths name other files there), is still kept.
+    other = CheckpointStore([checkpoint], "old-key", job="mcrt render tiny.xml --spp 8")
+    other.save(Checkpoint({"done": 1, "settings": [8, 2, 0]}))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    for job, cwd in (("mcrt render tiny.xml --spp 8", tmp_path), ("same", elsewhere)):
+        monkeypatch.chdir(cwd)
+        CheckpointStore([checkpoint], "old-key", job=job).save(Checkpoint({"done": 1}))
+        monkeypatch.chdir(tmp_path)
+        store = CheckpointStore([checkpoint], "new-key", job="same" if cwd == elsewhere
+                                else "mcrt render tiny.xml --spp 16")
+        assert store.load() is None and store.foreign == {checkpoint}
+        store.discard()
+        assert checkpoint.exists()

@@ -264,8 +264,13 @@ def _run(argv: list[str], process: bool) -> int:
     # full parser would (same prog, usage and messages).
     # Without one (--help, --version, a typo, nothing) the subcommands' names and
     # summaries are all the parser needs.
-    with collection_held_back(freeze=process):  # the command's modules
-        parser = build_parser(summary=True) if command is None else build_parser([command])
+    try:
+        with collection_held_back(freeze=process):  # the command's modules
+            parser = build_parser(summary=True) if command is None else build_parser([command])
+    except (MemoryError, ImportError, OSError) as error:  # a library that did not fit
+        if not _allocation_failure(error):
+            raise
+        return _out_of_memory()
     args = parser.parse_args(argv)
     from ..core.engine import termination_as_interrupt
 
@@ -281,22 +286,42 @@ def _run(argv: list[str], process: bool) -> int:
     except BrokenPipeError:  # e.g. `mcrt plan ... | head`: the reader left, nothing to report
         _silence_stdout()
         return 141
+    except MemoryError as error:
+        return _out_of_memory(_one_line(error) if 0 < len(str(error)) < 300 else "")
     except McrtError as error:
+        if _allocation_failure(error):  # e.g. a scene whose plugin library could not be mapped
+            return _out_of_memory(_one_line(error))
         print(f"mcrt: error: {_one_line(error)}", file=sys.stderr)
         return 2
     except OSError as error:  # an I/O failure no check foresaw: still one line
+        if _allocation_failure(error):
+            return _out_of_memory()
         where = f": {error.filename}" if error.filename else ""
         print(f"mcrt: error: {error.strerror or error}{where}", file=sys.stderr)
         return 2
-    except MemoryError:
-        from ..core.memory import describe
-
-        print(f"mcrt: error: out of memory ({describe()}); use a smaller image or raise the "
-              f"limit", file=sys.stderr)
-        return 2
+    except (ImportError, RuntimeError) as error:  # a library that did not fit, bad_alloc
+        if not _allocation_failure(error):
+            raise
+        return _out_of_memory()
     except KeyboardInterrupt:
         print("mcrt: interrupted", file=sys.stderr)
         return 130
+
+
+def _allocation_failure(error: BaseException) -> bool:
+    from ..core.memory import is_allocation_failure
+
+    return is_allocation_failure(error)
+
+
+def _out_of_memory(detail: str = "") -> int:
+    """``mcrt: error: out of memory (the limits seen...)``, exit status 2."""
+    from .._exit import out_of_memory
+    from ..core.memory import out_of_memory_message
+
+    out_of_memory()  # no clean-up handlers at exit: they crash after failed allocations
+    print(f"mcrt: error: {out_of_memory_message(detail)}", file=sys.stderr)
+    return 2
 
 
 def _one_line(error: Exception) -> str:

@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..core.atomic import check_free_space, ensure_writable_dir, remove_stale_temporaries
+from ..core.atomic import (
+    check_free_space,
+    ensure_writable_dir,
+    refuse_special,
+    remove_stale_temporaries,
+    special_kind,
+)
 from ..errors import McrtError
 
 log = logging.getLogger("mcrt")
@@ -77,7 +84,9 @@ def output_stem(out: str | None, default: str) -> Path:
 
 
 def check_output_files(*paths: Path) -> None:
-    """Fail early if an output path exists but cannot be replaced."""
+    """Fail early if an output path exists but cannot be replaced: a directory,
+    a file without write permission, or a FIFO, socket or device (never
+    replaced: someone put it there)."""
     for path in paths:
         ensure_writable_dir(path.parent if str(path.parent) else Path("."))
         try:
@@ -85,6 +94,60 @@ def check_output_files(*paths: Path) -> None:
                 raise McrtError(f"cannot overwrite {path}")
         except OSError as error:  # e.g. a file name too long for the file system
             raise McrtError(f"cannot write {path}: {error.strerror}") from None
+        kind = special_kind(path)
+        if kind is not None:
+            raise McrtError(f"cannot overwrite {path}: it is {kind}, not a regular file "
+                            f"(remove it or write elsewhere with -o)")
+
+
+@contextlib.contextmanager
+def removed_if_refused(directory: Path) -> Iterator[None]:
+    """The checks a command makes before any work: if the block raises, the
+    folders it created on the way to ``directory`` (``-o out/a/b``: ``out``,
+    ``a`` and ``b`` if none existed) are removed again, each only if still
+    empty, so a refused command leaves nothing behind."""
+    missing: list[Path] = []
+    path = Path(os.path.abspath(directory))
+    try:
+        while not os.path.lexists(path) and path != path.parent:
+            missing.append(path)
+            path = path.parent
+    except OSError:  # e.g. a name too long: nothing to remember
+        missing = []
+    try:
+        yield
+    except BaseException:
+        for made in missing:  # deepest first
+            try:
+                made.rmdir()
+            except OSError:
+                break  # not created, or not empty: the folders above stay too
+        raise
+
+
+def check_state_files(paths: Sequence[Path], role: str) -> None:
+    """Before any work: a one-line error if a file the command reads back and
+    rewrites (a checkpoint, a saved state) is a FIFO, socket, device or
+    directory; reading a FIFO would wait for ever, and mcrt does not replace
+    what someone else put there."""
+    for path in paths:
+        refuse_special(path, role, "remove it and run the command again")
+
+
+def check_state_directory(directory: Path, role: str) -> None:
+    """As :func:`check_state_files`, for ``directory`` (a study's resume folder)
+    and the files in it, if it exists; folders in it are left to the code that
+    reads the state (it never opens them as files)."""
+    kind = special_kind(directory)
+    if kind is None:
+        return  # missing, or a regular file: the state's own code reports it
+    if kind != "a directory":
+        refuse_special(directory, role, "remove it and run the command again")
+    try:
+        entries = sorted(directory.iterdir())
+    except OSError:
+        return  # unreadable: the state's own checks report it
+    check_state_files([e for e in entries if special_kind(e) != "a directory"], role)
 
 
 def checkpoint_interval() -> float | None:
@@ -117,6 +180,43 @@ def require_space(directory: Path, needed: int, what: str = "the outputs") -> No
 def image_bytes(pixels: int, channels: int = 4) -> int:
     """Upper bound of an image file's size: float32 channels, uncompressed."""
     return pixels * channels * 4
+
+
+#: Address space one more OpenBLAS thread takes (its 32 MiB work buffer and its stack).
+BLAS_THREAD_BYTES = 40 << 20
+
+
+def import_up_front(modules: Sequence[str], needed: int, what: str) -> None:
+    """Import now, before any heavy allocation, the libraries a command loads
+    later (``needed``: the address space they take, measured, with room).
+
+    Under ``ulimit -v`` a library loaded late may find no room left: scipy's
+    OpenBLAS (which ``colour`` loads) then retries its work buffer forever at
+    100% CPU, where SIGTERM is never handled. Here, ``MemoryError`` (``mcrt:
+    error: out of memory (...)``) when the limit leaves less than ``needed``
+    (plus :data:`BLAS_THREAD_BYTES` for each OpenBLAS thread beyond the first)
+    or a library cannot be mapped. A module that is not installed is left to
+    the code that uses it to report."""
+    import sys
+
+    from ..core.memory import is_allocation_failure, require_address_space
+
+    if all(name in sys.modules for name in modules):
+        return
+    try:
+        threads = max(1, int(os.environ.get("OPENBLAS_NUM_THREADS", "") or os.cpu_count() or 1))
+    except ValueError:
+        threads = os.cpu_count() or 1
+    require_address_space(needed + (threads - 1) * BLAS_THREAD_BYTES, what)
+    for name in modules:
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError:
+            continue
+        except Exception as error:
+            if is_allocation_failure(error):
+                raise MemoryError(f"{name} could not be loaded: {error}") from None
+            raise
 
 
 def note_first_run() -> None:

@@ -32,6 +32,17 @@ from ._common import check_output_files, ensure_writable_dir, examples
 
 log = logging.getLogger("mcrt.compare")
 
+#: Libraries a study loads after its first render (CIEDE2000 from colour, which
+#: loads scipy and its OpenBLAS; the report's plots, images and FLIP maps):
+#: imported before any render (see :func:`mcrt.cli._common.import_up_front`).
+STUDY_MODULES = ("colour", "colour.difference", "matplotlib.figure",
+                 "matplotlib.backends.backend_agg", "PIL.Image", "PIL.ImageDraw",
+                 "PIL.ImageFont", "OpenEXR", "flip_evaluator")
+
+#: Address space :data:`STUDY_MODULES` take with one OpenBLAS thread (measured:
+#: 186 MiB after Mitsuba, 218 before numpy's OpenBLAS has its buffer), with room to spare.
+STUDY_MODULE_BYTES = 288 << 20
+
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = commands.add_parser(
@@ -87,14 +98,19 @@ def run(args: argparse.Namespace) -> int:
               f"timed rounds: {config.renders} renders)")
         return 0
     out = Path(args.output) if args.output else Path("out") / "compare" / config.name
-    ensure_writable_dir(out)
-    check_output_files(*report_files(out, [s.name for s in config.scenes]).values())
-    _check_space(config, out)
+    with _common.removed_if_refused(out):  # a refused study leaves no empty folder
+        if args.retime and args.restart:
+            raise McrtError("--retime times the saved cells again; --restart discards them: "
+                            "use one of the two")
+        ensure_writable_dir(out)
+        check_output_files(*report_files(out, [s.name for s in config.scenes]).values())
+        for state_dir in sorted(out.glob(f"{STATE_DIR}*")):  # the saved state, and set aside
+            _common.check_state_directory(state_dir, "the study's saved state")
+        _check_space(config, out)
+        _common.import_up_front(STUDY_MODULES, STUDY_MODULE_BYTES,
+                                "the study's metrics and report")
     _common.note_first_run()
 
-    if args.retime and args.restart:
-        raise McrtError("--retime times the saved cells again; --restart discards them: "
-                        "use one of the two")
     state = StudyState.open(out, config, restart=args.restart)
     if args.retime:
         if len(state.cells) < config.cells:

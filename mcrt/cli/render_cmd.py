@@ -110,10 +110,11 @@ def run(args: argparse.Namespace) -> int:
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
     adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
     heat_path = stem.with_name(stem.name + "_spp.png")
-    check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
-    check_output_space(exr_path.parent, scene)
-    _check_memory(scene, adaptive_settings)
-    cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
+    with _common.removed_if_refused(exr_path.parent):  # a refused render leaves no folder
+        check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
+        check_output_space(exr_path.parent, scene)
+        _check_memory(scene, adaptive_settings)
+        cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
     note_first_run()
     metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
     if getattr(args, "plugin_files", None):  # the user's plugin files the render needs
@@ -131,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
         log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
                      passes, sampler_params=metadata["sampler_params"])
+    _common.check_state_files(_resume_paths(exr_path, key), "the render's checkpoint")
     store = CheckpointStore(_resume_paths(exr_path, key), key, _job(args, name, spp, stem))
     state = store.load()
     if state is not None:
@@ -330,6 +332,7 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     from ..io.heatmap import write_heatmap
 
     exr_path, png_path, heat_path = paths
+    _common.check_state_files(_resume_paths(exr_path, key), "the render's checkpoint")
     store = CheckpointStore(_resume_paths(exr_path, key), key,
                             _job(args, name, settings.max_spp, exr_path.with_suffix("")))
     state = store.load()

@@ -21,6 +21,7 @@ import contextlib
 import errno
 import os
 import re
+import stat
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,9 +40,33 @@ class ImageIOError(McrtError):
     errno: int | None = None
 
 
+#: Causes a writer may give only in words (OpenEXR says ``No space left on
+#: device.`` in its own exception), as ``os.strerror`` and :func:`_reason` put them.
+_CAUSES_IN_WORDS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
+                    errno.ENOMEM)
+_REASONS_IN_WORDS = {"no space left on device": errno.ENOSPC,
+                     "disk quota exceeded": errno.EDQUOT,
+                     "read-only file system": errno.EROFS, "permission denied": errno.EACCES}
+
+
+def cause_of(error: BaseException) -> int | None:
+    """The ``errno`` of a failed write: the exception's own, else the one its
+    message names (a writer's exception that is not an ``OSError``)."""
+    code = getattr(error, "errno", None)
+    if isinstance(code, int):
+        return code
+    text = str(error).lower()
+    for candidate in _CAUSES_IN_WORDS:
+        if os.strerror(candidate).lower() in text:
+            return candidate
+    return next((c for words, c in _REASONS_IN_WORDS.items() if words in text), None)
+
+
 def remedy(error: BaseException) -> str:
     """What the user can do about a failed write, from its real cause."""
-    code = getattr(error, "errno", None)
+    code = cause_of(error)
+    if code == errno.ENOMEM:
+        return "free some memory or raise the memory limit"
     if code in (errno.ENOSPC, errno.EDQUOT):
         return "free some space"
     if code == errno.EROFS:
@@ -69,6 +94,36 @@ def _reason(exc: OSError) -> str:
     if code == errno.EDQUOT:
         return "disk quota exceeded"
     return exc.strerror or str(exc)
+
+
+def special_kind(path: str | os.PathLike) -> str | None:
+    """What ``path`` is when it exists but is not a regular file: ``"a
+    directory"``, ``"a FIFO (named pipe)"``, ``"a socket"``, ``"a character
+    device"``, ``"a block device"``; None for a regular file or nothing there.
+
+    Found with ``stat`` (a symbolic link is followed), never by opening the
+    file: opening a FIFO for reading waits for a writer, for ever."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISREG(mode):
+        return None
+    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def refuse_special(path: str | os.PathLike, role: str, remedy: str = "remove it") -> None:
+    """One-line :class:`McrtError` if ``path`` (the command's ``role``: its
+    output, checkpoint, saved state...) exists but is not a regular file:
+    mcrt neither reads nor replaces a FIFO, socket, device or directory there."""
+    kind = special_kind(path)
+    if kind is not None:
+        raise McrtError(f"{os.fspath(path)} ({role}) is {kind}, not a regular file; {remedy}")
 
 
 def write_error(path: str | os.PathLike, exc: OSError | str) -> ImageIOError:
@@ -150,6 +205,9 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[str]
         raise write_error(path, "the path names a directory, not a file")
     if os.path.isdir(final):
         raise write_error(path, "the path is a directory")
+    kind = special_kind(final)
+    if kind is not None:  # never replaced: a FIFO, socket or device someone put there
+        raise write_error(path, f"the path is {kind}, not a regular file")
     if not os.path.isdir(directory):
         reason = ("a component of the path is not a directory" if os.path.exists(directory)
                   else f"the directory '{directory}' does not exist")
@@ -183,6 +241,9 @@ def ensure_readable(path: str | os.PathLike) -> Path:
     """Return ``path`` as a :class:`Path`; raise :class:`ImageIOError` unless it
     is an existing regular file that can be opened for reading."""
     p = Path(path)
+    kind = special_kind(p)
+    if kind is not None and kind != "a directory":  # opening a FIFO would wait for ever
+        raise read_error(path, f"it is {kind}, not a regular file")
     try:
         with open(p, "rb"):
             pass

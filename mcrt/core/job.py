@@ -31,7 +31,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from ..errors import McrtError
-from .atomic import atomic_path, remove_stale_temporaries
+from .atomic import atomic_path, remove_stale_temporaries, special_kind
 
 log = logging.getLogger("mcrt")
 
@@ -84,6 +84,7 @@ class Checkpoint:
         """
         meta_text = json.dumps(self.meta, sort_keys=True)
         header = json.dumps({"format": CHECKPOINT_FORMAT, "key": key, "job": job,
+                             "cwd": _cwd() if job else None,
                              "checksum": _checksum(key, meta_text, self.arrays)})
         buffer = io.BytesIO()
         members: dict[str, Any] = {f"a_{name}": a for name, a in self.arrays.items()}
@@ -98,9 +99,15 @@ class Checkpoint:
 
         A missing file gives None quietly; a file of another job (another key)
         gives None with a note and stays; a damaged one is set aside with a note.
+        A FIFO, socket, device or directory at ``path`` is never opened (a FIFO
+        would block for ever): None with a note, and it stays.
         Temporary files of killed writers next to it are removed first.
         """
         remove_stale_temporaries(path.parent)
+        kind = special_kind(path)
+        if kind is not None:  # never opened (a FIFO would block), renamed or replaced
+            log.warning("%s is %s, not a checkpoint: not used", path, kind)
+            return None
         try:
             with np.load(path, allow_pickle=False) as data:
                 header = json.loads(str(data["header"]))
@@ -137,9 +144,31 @@ def set_aside(path: Path, why: str) -> None:
         log.warning("%s is %s: not used, the work is done again", path, why)
 
 
+def _cwd() -> str | None:
+    try:
+        return os.getcwd()
+    except OSError:
+        return None
+
+
+def _header(path: Path) -> dict[str, Any] | None:
+    """The header of the checkpoint at ``path`` (key, job, ...); None if there
+    is none or it cannot be read."""
+    if special_kind(path) is not None:  # a FIFO would block: Checkpoint.load reports it
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            header = json.loads(str(data["header"]))
+    except Exception:  # missing, damaged: Checkpoint.load reports those
+        return None
+    return header if isinstance(header, dict) else None
+
+
 def other_job(path: Path, key: str) -> str | None:
     """If ``path`` holds an intact-looking checkpoint of another job than ``key``:
     what it was, in words (its command line and progress). None otherwise."""
+    if special_kind(path) is not None:  # a FIFO would block: Checkpoint.load reports it
+        return None
     try:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(str(data["header"]))
@@ -157,6 +186,14 @@ def other_job(path: Path, key: str) -> str | None:
     return f"{job}; {done} passes done" if isinstance(done, int) else job
 
 
+def progress_of(checkpoint: Checkpoint) -> int:
+    """How far a checkpoint's job got: its passes done (``done`` of renders and
+    references, ``next_pass`` of adaptive renders); -1 if it does not say."""
+    meta = checkpoint.meta
+    done = meta.get("done", meta.get("next_pass")) if isinstance(meta, dict) else None
+    return done if isinstance(done, int) and not isinstance(done, bool) else -1
+
+
 class CheckpointStore:
     """Where one job keeps its checkpoint: the first of ``paths`` that can be
     written (e.g. next to the output, else in the cache).
@@ -165,6 +202,14 @@ class CheckpointStore:
     is kept as it is, with a note saying whose it is: this job then uses the
     next path, and the other job can still be resumed by its own command.
     ``job`` (a command line) is recorded with the checkpoints for such notes.
+    A checkpoint recorded by this very command line, in this directory, whose
+    key is not this job's (a scene file edited since, even in a comment, or
+    new versions of mcrt, Mitsuba or Dr.Jit) can no longer be resumed by any
+    command: it is replaced, with one note.
+
+    The job keeps one checkpoint: a save to one path removes the job's older
+    checkpoints at the others (a full disk next to the output sends the later
+    ones to the cache), and :meth:`load` takes the most advanced it finds.
     """
 
     def __init__(self, paths: Iterable[Path], key: str, job: str = "") -> None:
@@ -175,8 +220,15 @@ class CheckpointStore:
         self.foreign: set[Path] = set()
 
     def load(self) -> Checkpoint | None:
+        best: Checkpoint | None = None
         for path in self.paths:
             other = other_job(path, self.key)
+            if other is not None and self._unreachable(path):
+                log.info("%s is the checkpoint of this same command (%s) made from other "
+                         "inputs (a scene file changed since, or the versions of mcrt, "
+                         "Mitsuba or Dr.Jit): no command can resume it any more; replaced",
+                         path, other)
+                continue
             if other is not None:
                 self.foreign.add(path)
                 mine = next((p for p in self.paths if p not in self.foreign), None)
@@ -187,28 +239,52 @@ class CheckpointStore:
                          path, other, where)
                 continue
             found = Checkpoint.load(path, self.key)
-            if found is not None:
-                return found
-        return None
+            if found is not None and (best is None or progress_of(found) > progress_of(best)):
+                best = found
+        return best
+
+    def _unreachable(self, path: Path) -> bool:
+        """Whether ``path`` holds a checkpoint that this job's own command line
+        (run in the same directory) recorded under another key."""
+        header = _header(path)
+        if header is None or not self.job or header.get("job") != self.job:
+            return False
+        recorded = header.get("cwd")
+        return recorded is None or recorded == _cwd()
 
     def save(self, checkpoint: Checkpoint) -> Path | None:
-        """Save to the first writable path; None (with a note) if none works."""
+        """Save to the first writable path; None (with a note) if none works.
+        The job's checkpoints at the other paths (older) are removed."""
         for path in self.paths:
             if path in self.foreign:
                 continue
             try:
                 checkpoint.save(path, self.key, self.job)
-                self.saved = path
-                return path
             except (McrtError, OSError) as error:
                 log.warning("cannot save the checkpoint to %s (%s)", path, error)
+                continue
+            self.saved = path
+            self._remove_older(path)
+            return path
         return None
+
+    def _remove_older(self, current: Path) -> None:
+        for path in self.paths:
+            if path == current or path in self.foreign:
+                continue
+            header = _header(path)
+            if header is not None and header.get("key") == self.key:
+                try:
+                    path.unlink()
+                except OSError:
+                    pass  # load() still prefers the most advanced one
 
     def discard(self) -> None:
         """Delete this job's checkpoint (never another job's)."""
         for path in self.paths:
             if path not in self.foreign:
-                path.unlink(missing_ok=True)
+                if special_kind(path) is None:  # a FIFO, a directory...: not ours to delete
+                    path.unlink(missing_ok=True)
 
     def save_periodic(self, checkpoint: Checkpoint) -> None:
         """A checkpoint taken while the job runs: after a failure (full disk, ...)

@@ -22,6 +22,7 @@ measured peak).
 
 from __future__ import annotations
 
+import errno
 import resource
 from pathlib import Path
 
@@ -45,7 +46,7 @@ USABLE_SHARE = 0.8
 def _read_int(path: Path) -> int | None:
     try:
         text = path.read_text().split()[0]
-    except (OSError, IndexError):
+    except (OSError, IndexError, MemoryError):
         return None
     return int(text) if text.isdigit() else None
 
@@ -56,7 +57,7 @@ def _status_bytes(field: str) -> int | None:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith(field + ":"):
                 return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
+    except (OSError, ValueError, IndexError, MemoryError):
         pass
     return None
 
@@ -66,6 +67,71 @@ def _address_space_left() -> int | None:
     if soft == resource.RLIM_INFINITY:
         return None
     return max(0, soft - (_status_bytes("VmSize") or 0))
+
+
+def address_space_left() -> int | None:
+    """Bytes of address space ``ulimit -v`` still allows (None: no limit)."""
+    return _address_space_left()
+
+
+#: Address space that loading libLLVM takes (measured: ~130 MiB for libLLVM 19):
+#: a backend that failed to load with less than this left did not fit.
+LLVM_LOAD_BYTES = 256 << 20
+
+#: With less address space than this left, a failed thread start (``EAGAIN``:
+#: no room for its stack) is a failed allocation too.
+THREAD_START_BYTES = 64 << 20
+
+#: What the messages of failed allocations say: the loader's for a library that
+#: does not fit (``failed to map segment``), ``ENOMEM``, C++'s ``bad_alloc``.
+_ALLOCATION_FAILURES = ("failed to map segment", "cannot allocate memory", "bad_alloc",
+                        "memory allocation failed")
+
+
+def is_allocation_failure(error: BaseException) -> bool:
+    """Whether ``error`` is an allocation that failed, or was caused by one (its
+    ``__cause__``, or its ``__context__`` unless raised ``from None``):
+    ``MemoryError``, ``ENOMEM``, a shared library that could not be mapped
+    (``ImportError: ... failed to map segment from shared object``), C++'s
+    ``std::bad_alloc`` as Mitsuba reports it, or a thread that could not start
+    (``EAGAIN``, Python's ``can't start new thread``) with the address space
+    (``ulimit -v``) nearly used up."""
+    seen: BaseException | None = error
+    for _ in range(8):  # the chain of causes (a failed import inside another's)
+        if seen is None:
+            return False
+        if _failed_allocation(seen):
+            return True
+        seen = seen.__cause__ or (None if seen.__suppress_context__ else seen.__context__)
+    return False
+
+
+def _failed_allocation(error: BaseException) -> bool:
+    if isinstance(error, MemoryError) or getattr(error, "errno", None) == errno.ENOMEM:
+        return True
+    try:
+        text = str(error).lower()
+    except MemoryError:
+        return True
+    if any(sign in text for sign in _ALLOCATION_FAILURES):
+        return True
+    if not isinstance(error, McrtError) and "out of memory" in text:  # ours say it in words
+        return True
+    if "resource temporarily unavailable" in text or "can't start new thread" in text or \
+            getattr(error, "errno", None) == errno.EAGAIN:
+        left = _address_space_left()
+        return left is not None and left < THREAD_START_BYTES
+    return False
+
+
+def require_address_space(needed: int, what: str) -> None:
+    """``MemoryError`` unless ``ulimit -v`` leaves ``needed`` bytes of address
+    space, before loading or allocating ``what`` where a failure could not be
+    caught (OpenBLAS retries a failed buffer forever or aborts; Dr.Jit crashes)."""
+    left = _address_space_left()
+    if left is not None and left < needed:
+        raise MemoryError(f"{what} needs about {_mib(needed)} of address space, "
+                          f"{_mib(left)} are left under ulimit -v")
 
 
 def _cgroup_dir() -> Path | None:
@@ -185,13 +251,26 @@ def require_memory(pixels: int, fixed_bytes: int, what: str,
     return budget
 
 
+def out_of_memory_message(detail: str = "") -> str:
+    """The one line (after ``mcrt: error:``) of a command that ran out of memory:
+    the limits seen (:func:`describe`) and, if given, what failed."""
+    where = f": {detail}" if detail else ""
+    return f"out of memory ({describe()}){where}; use a smaller image or raise the limit"
+
+
 def describe() -> str:
-    """The memory limits seen, for notes and bug reports."""
-    parts = [f"{name} {_mib(value)}" for name, value in
-             (("ulimit -v left", _address_space_left()), ("cgroup left", _cgroup_left()),
-              ("host available", _host_available())) if value is not None]
-    return ", ".join(parts) or "no limit known"
+    """The memory limits seen, for notes, bug reports and the out-of-memory
+    message (which is printed with the memory nearly used up: never raises)."""
+    try:
+        parts = [f"{name} {_mib(value)}" for name, value in
+                 (("ulimit -v left", _address_space_left()), ("cgroup left", _cgroup_left()),
+                  ("host available", _host_available())) if value is not None]
+        return ", ".join(parts) or "no limit known"
+    except Exception:  # MemoryError included: the message must still be printed
+        return "the limits could not be read"
 
 
-__all__ = ["BYTES_PER_LANE", "KERNEL_BYTES", "STATS_BYTES_PER_LANE", "available_bytes",
-           "describe", "film_bytes", "lane_budget", "moments_bytes", "require_memory"]
+__all__ = ["BYTES_PER_LANE", "KERNEL_BYTES", "LLVM_LOAD_BYTES", "STATS_BYTES_PER_LANE",
+           "THREAD_START_BYTES", "address_space_left", "available_bytes", "describe",
+           "film_bytes", "is_allocation_failure", "lane_budget", "moments_bytes",
+           "out_of_memory_message", "require_address_space", "require_memory"]
