@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from mcrt.analysis import plots
-from mcrt.analysis.study import CellImages, ReferenceInfo, StudyResult, parse_config
+from mcrt.analysis.study import CellImages, CellRenders, ReferenceInfo, StudyResult, parse_config
 from mcrt.analysis.study import figures as study_figures
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,16 +56,64 @@ def _fit(scene: str, label: str, cells: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def scene_image(scene: str, h: int, w: int) -> np.ndarray:
+    """A made-up, smooth reference (h, w, 3): the checkerboard receding to its
+    horizon under a sky, or a box's red, green and white walls lit from above."""
+    y, x = (np.mgrid[0:h, 0:w] + 0.5) / np.array([h, w], float)[:, None, None]
+    if scene == "checkerboard":
+        depth = 0.15 / np.clip(y - 0.4, 1e-3, None)
+        check = (np.floor(4 * (x - 0.5) * depth) + np.floor(4 * depth)) % 2
+        ground = (0.05 + 0.7 * check) * np.exp(-0.01 * depth)
+        value = np.where(y > 0.4, ground, 0.4 + 0.5 * y)
+        return np.stack([value, value, np.where(y > 0.4, ground, 0.9)], axis=-1)
+    light = 1.0 / (1.0 + 4.0 * ((x - 0.5) ** 2 + (y - 0.05) ** 2))
+    colour = np.select([x < 0.2, x > 0.8], [np.array([0.6, 0.1, 0.1])[:, None, None],
+                                            np.array([0.1, 0.6, 0.1])[:, None, None]],
+                       np.array([0.7, 0.7, 0.7])[:, None, None])
+    box = (np.abs(x - 0.35) < 0.1) & (y > 0.45) & (y < 0.9)
+    return np.moveaxis(colour * light * np.where(box, 0.6, 1.0), 0, -1)
+
+
+def _renders(result: StudyResult, seed: int) -> None:
+    """Every cell's images (first seed, mean over seeds, per-pixel variance across
+    them): the reference plus noise of the cell's MSE, larger where it is brighter;
+    and what the report reads besides: per-seed values and the study's own fits."""
+    from mcrt.analysis.study import fit_sampler
+
+    rng = np.random.default_rng(seed)
+    k = len(result.config.seeds)
+    for cell in result.cells:
+        cell["per_seed"] = [
+            {"seed": s, "spp": cell["spp"], "seconds": cell["seconds"],
+             "mse": cell["mse"] * math.exp(rng.normal(0, 0.1)), "rel_mse": cell["rel_mse"],
+             "delta_e": 1.0, "mean_error": 0.0, "nonfinite": 0,
+             "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
+            for s in result.config.seeds]
+        ref = result.reference_images[cell["scene"]]
+        lum = ref.mean(axis=-1)
+        sd = np.sqrt(cell["mse_excess"] * (lum + 0.05) / (lum.mean() + 0.05)).astype(np.float32)
+        noise = rng.standard_normal((2, *ref.shape), dtype=np.float32) * sd[..., None]
+        variance = sd ** 2 * rng.chisquare(k - 1, sd.shape).astype(np.float32) / (k - 1)
+        result.renders[(cell["scene"], cell["sampler"], cell["spp_requested"])] = CellRenders(
+            mean=(ref + noise[0] / math.sqrt(k)).astype(np.float32),
+            first=(ref + noise[1]).astype(np.float32), variance=variance.astype(np.float32))
+    result.fits = [fit_sampler(scene, s.label, result.cells) for scene in result.scenes
+                   for s in result.config.samplers]
+
+
 def synthetic_result(samplers: tuple[str, ...] = SAMPLERS, spp: tuple[int, ...] = (4, 16, 64, 256),
                      unstable: frozenset[tuple[str, str, int]] = frozenset(),
                      biased: frozenset[tuple[str, str, int]] = frozenset(),
                      sizes: dict[str, tuple[int, int]] | None = None,
-                     mse_scale: float = 1.0, seed: int = 1) -> StudyResult:
+                     mse_scale: float = 1.0, seed: int = 1, smooth: bool = False,
+                     renders: bool = False) -> StudyResult:
     """A study result of made-up cells carrying every key the plots read
     (``unstable``/``biased``: (scene, sampler, spp) of cells whose timing was
     unstable / whose bias is significant); images only at ``image_spp``, of
     ``sizes`` (scene: (height, width); default: the full study's); every MSE
-    times ``mse_scale``."""
+    times ``mse_scale``. References are noise, or with ``smooth`` made-up scenes
+    (:func:`scene_image`); with ``renders`` every cell has its images for the
+    report's viewer and EXR files (:func:`_renders`; no rendering either way)."""
     config = parse_config({
         "name": "synthetic", "spp": list(spp), "seeds": 4, "samplers": list(samplers),
         "image_spp": spp[1] if len(spp) > 1 else spp[0],
@@ -78,7 +126,7 @@ def synthetic_result(samplers: tuple[str, ...] = SAMPLERS, spp: tuple[int, ...] 
     references, reference_images = {}, {}
     for scene, (_, size) in SCENES.items():
         h, w = (sizes or {}).get(scene, size)
-        ref = rng.random((h, w, 3))
+        ref = scene_image(scene, h, w) if smooth else rng.random((h, w, 3))
         reference_images[scene] = ref
         references[scene] = ReferenceInfo(scene, config.reference.spp, "independent", 60.0,
                                           FLOOR, 1e-5, w, h)
@@ -109,7 +157,12 @@ def synthetic_result(samplers: tuple[str, ...] = SAMPLERS, spp: tuple[int, ...] 
                 else 0.4, "aliasing_peak": 2.0, "aliasing_peak_z": 31.0
                 if label == "uniform_grid" else -0.3,
                 "aliasing": "aliased" if label == "uniform_grid" else "noise",
-                "nonfinite": 0, "per_seed": []})
+                "nonfinite": 0, "per_seed": [],
+                # the rest of a cell's keys, for the report (mcrt.analysis.study.fields)
+                "cpu_seconds": seconds, "times": [seconds] * k, "cpu_times": [seconds] * k,
+                "time_others": [0] * k, "efficiency_ratio": 1.0, "efficiency_ratio_low": 0.9,
+                "efficiency_ratio_high": 1.1, "efficiency_samples": 1 / (mse_excess * seconds),
+                "bias_df": k - 1, "verdict": "aliased" if label == "uniform_grid" else "noise"})
             if n == config.image_spp:
                 sd = math.sqrt(mse)
                 error = rng.normal(0, sd, (h, w))
@@ -122,9 +175,12 @@ def synthetic_result(samplers: tuple[str, ...] = SAMPLERS, spp: tuple[int, ...] 
     fits = [_fit(scene, label, cells) for scene in SCENES for label in samplers]
     env = {"mcrt": "test", "mitsuba": "-", "drjit": "-", "variant": "-", "python": "-",
            "platform": "-", "cpus": 2, "started": "-"}
-    return StudyResult(config=config, references=references, cells=cells, fits=fits,
-                       reference_images=reference_images, images=images, environment=env,
-                       seconds=1.0)
+    result = StudyResult(config=config, references=references, cells=cells, fits=fits,
+                         reference_images=reference_images, images=images, environment=env,
+                         seconds=1.0)
+    if renders:
+        _renders(result, seed + 1)
+    return result
 
 
 def write_figures(result: StudyResult, out: Path) -> list[Path]:

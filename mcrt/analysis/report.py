@@ -2,15 +2,18 @@
 
 ``write_report(result, directory)`` writes, each file atomically:
 
-* ``report.html`` - self-contained (CSS and JavaScript inline, every image
-  embedded; works offline): a table of contents, what was measured and how
-  time was taken, the slope / efficiency tables, plots, per scene an
+* ``report.html`` - the page (CSS and JavaScript inline, the figures embedded;
+  works offline, from ``file://``): a table of contents, what was measured and
+  how time was taken, the slope / efficiency tables, plots, per scene an
   interactive image viewer (:mod:`mcrt.analysis.viewer`: samplers, sample
   counts, the reference and five error views at native resolution, zoom, pan,
   exposure, a pixel readout, crops of the hardest regions), and the full table
   of cells; every table sorts by a click on its header;
-* ``exr/<scene>/*.exr`` - the reference and, per cell, the mean over seeds
-  (with its per-pixel variance) and the first seed's render
+* ``viewer/<scene>/*.js`` - the viewer's images (float16, deflated; loaded by
+  the page only when shown, :mod:`mcrt.analysis.viewer.data`);
+* ``exr/<scene>/*.exr`` - the reference (with its standard error) and, per
+  cell, the mean over seeds (with its per-pixel variance) and the first seed's
+  render, float32, each header recording how it was made
   (:mod:`mcrt.analysis.viewer.files`), linked from the viewer;
 * ``summary.png`` - the main figure: excess MSE against spp per scene (the
   headline; time is the noisy axis), over the error maps of every sampler on
@@ -53,13 +56,22 @@ import numpy as np
 
 from ..core.atomic import atomic_path, ensure_writable_dir
 from .plots import save_figure
-from .report_tables import cell_header, cell_rows, fmt, summary_header, summary_rows, table
+from .report_tables import (
+    cell_header,
+    cell_rows,
+    findings_banners,
+    fmt,
+    partial_banner,
+    summary_header,
+    summary_rows,
+    table,
+)
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
-from .study.conclude import bias_lines, timing_lines
 from .study.fields import CSV_COLUMNS, DEFINITIONS
 from .study.figures import error_figure, images_figure, summary_figure
 from .viewer import HELP, viewer_assets, viewer_sections
-from .viewer.files import Links, write_exrs
+from .viewer.data import write_viewer_data
+from .viewer.files import write_exrs
 
 TIME_NOTE = (
     "Time is the wall time of one render (render_film: tracing every pass, accumulating and "
@@ -187,11 +199,12 @@ code{background:#f6f6f6;padding:0 3px}
 
 
 def render_html(result: StudyResult, files: dict[str, Path],
-                links: Links | None = None) -> str:
+                viewer_data: dict[str, dict[str, Any]] | None = None) -> str:
     """The report page; ``files``: the figures written (see :func:`report_files`),
-    ``links``: the EXR files written (:func:`~mcrt.analysis.viewer.files.write_exrs`)."""
+    ``viewer_data``: every scene's viewer data, its images written beside the page
+    (:func:`~mcrt.analysis.viewer.data.write_viewer_data`; without it, no viewers)."""
     parts = (_html_intro(result, files) + _html_convergence(result, files)
-             + _html_images(result, files, links or {}) + _html_references(result)
+             + _html_images(result, files, viewer_data or {}) + _html_references(result)
              + _html_cells(result) + _html_definitions())
     return "\n".join(parts)
 
@@ -280,7 +293,8 @@ def _html_convergence(result: StudyResult, files: dict[str, Path]) -> list[str]:
     return parts
 
 
-def _html_images(result: StudyResult, files: dict[str, Path], links: Links) -> list[str]:
+def _html_images(result: StudyResult, files: dict[str, Path],
+                 viewer_data: dict[str, dict[str, Any]]) -> list[str]:
     """The image viewer of every scene."""
     config = result.config
     sheets = ", ".join(f"<code>{html.escape(p.name)}</code>" for k, p in files.items()
@@ -294,11 +308,14 @@ def _html_images(result: StudyResult, files: dict[str, Path], links: Links) -> l
              "FLIP (perceptual, 0-1, of the first seed) and the per-pixel variance across "
              "seeds (zero where a sampler is deterministic, e.g. the uniform grid: its error "
              "is all bias). One colour scale per view and sample count, shared by the "
-             "samplers (the 99th percentile; { and } halve or double it).</p>",
+             "samplers (the 99th percentile; { and } halve or double it). The viewers show "
+             "float16 copies of the images (11 significant bits), each loaded from "
+             "<code>viewer/</code> when shown; the EXR files linked under each viewer hold "
+             "them in float32.</p>",
              f"<p class='note'>{HELP}</p>"]
     if sheets:
         parts.append(f"<p class='note'>Static sheets at {config.image_spp} spp: {sheets}.</p>")
-    parts += viewer_sections(result, links)
+    parts += viewer_sections(result, viewer_data)
     return parts
 
 
@@ -329,41 +346,6 @@ def _html_definitions() -> list[str]:
                  "<code>error_vs_spp.png</code>, <code>error_vs_time.png</code>.</p>")
     parts.append(f"<script>{viewer_assets()[1]}</script></body></html>\n")
     return parts
-def findings_banners(result: StudyResult) -> list[str]:
-    """Banners for what a reader must not miss: biased cells, disturbed timing."""
-    out = []
-    biased = bias_lines(result.cells)
-    if biased:
-        items = "".join(f"<li>{html.escape(line)}</li>" for line in biased)
-        out.append(f"<div class='partial'><b>Bias found.</b> The mean of these cells' "
-                   f"images differs from the reference by more than their noise explains "
-                   f"(95% family-wise, over the whole study):<ul>{items}</ul></div>")
-    timing = timing_lines(result.timing)
-    if timing:
-        items = "".join(f"<li>{html.escape(line)}</li>" for line in timing)
-        out.append(f"<div class='partial'><b>Timing was disturbed.</b> Times and "
-                   f"efficiencies of the cells named are doubtful:<ul>{items}</ul></div>")
-    return out
-
-
-def partial_banner(result: StudyResult) -> str:
-    """The report's notice that the study is incomplete, and how to resume it."""
-    total, done = result.config.cells, len(result.cells)
-    text = (f"<b>Partial result.</b> The study was interrupted after {done} of {total} "
-            f"cells ({len(result.config.seeds)} seeds each)")
-    stop = result.interrupted
-    if stop:
-        text += (f"; the cell being measured ({html.escape(stop['scene'])}, "
-                 f"{html.escape(stop['sampler'])}, {stop['spp']} spp) had "
-                 f"{stop['seeds_done']} of {stop['seeds_total']} seeds and is not included")
-    text += (". Slopes, efficiencies and plots use the finished cells only; the missing "
-             "ones are marked <i>pending</i>.")
-    if result.resumed_cells:
-        text += f" {result.resumed_cells} cells were taken from an earlier run's saved state."
-    if result.resume_command:
-        text += (" Run the same command again to resume (finished cells are not rendered "
-                 f"again): <code>{html.escape(result.resume_command)}</code>")
-    return f"<p class='partial'>{text}</p>"
 
 
 def report_files(directory: str | os.PathLike, scenes: list[str]) -> dict[str, Path]:
@@ -400,7 +382,8 @@ def write_report(result: StudyResult, directory: str | os.PathLike) -> dict[str,
         else:
             files.pop(f"images_{scene.name}")
     links = write_exrs(result, directory)
-    text = render_html(result, files, links)
+    viewer_data = write_viewer_data(result, directory, links)
+    text = render_html(result, files, viewer_data)
     with atomic_path(files["report"]) as tmp, open(tmp, "w", encoding="utf-8") as f:
         f.write(text)
     return files

@@ -1,4 +1,5 @@
-"""The HTML tables of a study's report: the summary per scene and the table of cells.
+"""The HTML tables of a study's report: the summary per scene and the table of cells,
+and the banners over the page (a partial study, biased cells, disturbed timing).
 
 Every column derives from the declaration of the fields
 (:mod:`mcrt.analysis.study.fields`): a :class:`~mcrt.analysis.study.fields.Column`
@@ -16,6 +17,7 @@ import numpy as np
 
 from .aliasing import UNMEASURED
 from .study import StudyResult
+from .study.conclude import bias_lines, timing_lines
 from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Field
 
 
@@ -139,4 +141,42 @@ def cell_rows(result: StudyResult) -> list[list[str]]:
     return rows
 
 
-__all__ = ["cell_header", "cell_rows", "fmt", "summary_header", "summary_rows", "table"]
+def findings_banners(result: StudyResult) -> list[str]:
+    """Banners for what a reader must not miss: biased cells, disturbed timing."""
+    out = []
+    biased = bias_lines(result.cells)
+    if biased:
+        items = "".join(f"<li>{html.escape(line)}</li>" for line in biased)
+        out.append(f"<div class='partial'><b>Bias found.</b> The mean of these cells' "
+                   f"images differs from the reference by more than their noise explains "
+                   f"(95% family-wise, over the whole study):<ul>{items}</ul></div>")
+    timing = timing_lines(result.timing)
+    if timing:
+        items = "".join(f"<li>{html.escape(line)}</li>" for line in timing)
+        out.append(f"<div class='partial'><b>Timing was disturbed.</b> Times and "
+                   f"efficiencies of the cells named are doubtful:<ul>{items}</ul></div>")
+    return out
+
+
+def partial_banner(result: StudyResult) -> str:
+    """The report's notice that the study is incomplete, and how to resume it."""
+    total, done = result.config.cells, len(result.cells)
+    text = (f"<b>Partial result.</b> The study was interrupted after {done} of {total} "
+            f"cells ({len(result.config.seeds)} seeds each)")
+    stop = result.interrupted
+    if stop:
+        text += (f"; the cell being measured ({html.escape(stop['scene'])}, "
+                 f"{html.escape(stop['sampler'])}, {stop['spp']} spp) had "
+                 f"{stop['seeds_done']} of {stop['seeds_total']} seeds and is not included")
+    text += (". Slopes, efficiencies and plots use the finished cells only; the missing "
+             "ones are marked <i>pending</i>.")
+    if result.resumed_cells:
+        text += f" {result.resumed_cells} cells were taken from an earlier run's saved state."
+    if result.resume_command:
+        text += (" Run the same command again to resume (finished cells are not rendered "
+                 f"again): <code>{html.escape(result.resume_command)}</code>")
+    return f"<p class='partial'>{text}</p>"
+
+
+__all__ = ["cell_header", "cell_rows", "findings_banners", "fmt", "partial_banner",
+           "summary_header", "summary_rows", "table"]

@@ -1,18 +1,19 @@
-"""The study report's image viewer: one interactive, self-contained panel per scene.
+"""The study report's image viewer: one interactive panel per scene.
 
 :func:`viewer_sections` returns the HTML of every scene's viewer: a skeleton and
-the scene's data as JSON, which ``viewer.js`` (inlined once into the report by
-:func:`viewer_assets`, with ``viewer.css``) turns into the viewer. Nothing is
-loaded from elsewhere: the report is one file that works offline.
+the scene's viewer data as JSON (image size, samplers, sample counts, the cells'
+numbers, the colour scales and the relative URLs of its images), which the
+scripts (``viewer.js``, ``loading.js``, ``pixels.js``, ``tables.js``, inlined once
+into the report by :func:`viewer_assets`, with ``viewer.css``) turn into the
+viewer. Nothing is loaded from elsewhere: the report directory works offline,
+from ``file://``.
 
-The data of a scene are float32 arrays (the reference; per cell the first
-seed's render, the mean over seeds, the per-pixel variance across seeds and
-the FLIP map of the first seed), each byte-shuffled (all first bytes, then all
-second bytes, ...), zlib-compressed and base64-encoded (:func:`encode_array`;
-the browser inflates them with ``DecompressionStream``). The viewer shows the
-true values: exposure and tone mapping (sRGB) are applied in the browser, the
-readout prints the stored float32 values, and the error views are computed
-there from the same floats:
+The images are files beside the report (:mod:`.data`: float16, deflated, one
+``<script src>`` each), loaded only when a panel that shows one scrolls into
+view, so that a study of many large images opens at once. The viewer shows the
+values of those files: exposure and tone mapping (sRGB) are applied in the
+browser, the readout prints the values, and the error views are computed there
+from them:
 
 * signed: ``Y(image) - Y(reference)`` (Rec. 709 luminance), blue below, red above;
 * absolute: ``|Y(image) - Y(reference)|``;
@@ -24,24 +25,18 @@ there from the same floats:
 
 The crops of the hardest regions (:func:`hardest_regions`) are the blocks with
 the largest squared luminance error of the first seed, averaged over samplers,
-at the report's spp. Each cell's images are also written as EXR next to the
-report (:mod:`.files`) and linked from the viewer.
+at the report's spp. Each cell's images are also written as float32 EXR next to
+the report (:mod:`.files`) and linked from the viewer.
 """
 
 from __future__ import annotations
 
-import base64
 import html
 import json
-import os
-import zlib
-from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from ..metrics import error_map
 
 if TYPE_CHECKING:
     from ..study import StudyResult
@@ -52,24 +47,17 @@ CROP_FRACTION = 5
 CROPS = 3
 
 
+#: The viewer's JavaScript, in the order the page runs it, in one function scope.
+SCRIPTS = ("viewer.js", "loading.js", "pixels.js", "tables.js")
+
+
 def viewer_assets() -> tuple[str, str]:
-    """The viewer's CSS and JavaScript (package data next to this module)."""
+    """The viewer's CSS and JavaScript (package data next to this module; the
+    scripts of :data:`SCRIPTS` in one strict-mode function)."""
     here = resources.files(__package__)
-    return ((here / "viewer.css").read_text(encoding="utf-8"),
-            (here / "viewer.js").read_text(encoding="utf-8"))
-
-
-def encode_array(array: np.ndarray) -> str:
-    """float32 little-endian, byte-shuffled, zlib, base64 (see the module doc)."""
-    a = np.ascontiguousarray(array, dtype="<f4")
-    shuffled = a.view(np.uint8).reshape(-1, 4).T.tobytes()
-    return base64.b64encode(zlib.compress(shuffled, 6)).decode("ascii")
-
-
-def decode_array(text: str, shape: tuple[int, ...]) -> np.ndarray:
-    """Inverse of :func:`encode_array` (for tests)."""
-    raw = np.frombuffer(zlib.decompress(base64.b64decode(text)), dtype=np.uint8)
-    return raw.reshape(4, -1).T.copy().view("<f4").reshape(shape)
+    parts = [(here / name).read_text(encoding="utf-8") for name in SCRIPTS]
+    script = '(function () {\n"use strict";\n' + "\n".join(parts) + "})();\n"
+    return (here / "viewer.css").read_text(encoding="utf-8"), script
 
 
 def flip_map(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, float]:
@@ -119,43 +107,6 @@ def hardest_regions(errors: list[np.ndarray], count: int = CROPS) -> list[list[i
     return chosen
 
 
-def scene_data(result: StudyResult, scene: str,
-               links: dict[tuple[str, str, int] | str, dict[str, str]]) -> dict[str, Any]:
-    """Everything the viewer of ``scene`` shows (JSON-ready); ``links``: the EXR
-    files written by :func:`mcrt.analysis.viewer.files.write_exrs`."""
-    config = result.config
-    ref = np.asarray(result.reference_images[scene], np.float32)
-    h, w = ref.shape[:2]
-    cells: dict[str, dict[str, Any]] = {}
-    hard: list[np.ndarray] = []
-    keys = [(scene, s.label, spp) for s in config.samplers for spp in config.spp
-            if (scene, s.label, spp) in result.renders]
-    # FLIP is the slow part (~0.5 s a 320x240 image); its C++ code releases the GIL.
-    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
-        flips = dict(zip(keys, pool.map(lambda k: flip_map(result.renders[k].first, ref),
-                                        keys)))
-    for key in keys:
-        _, label, spp = key
-        renders = result.renders[key]
-        cell = result.cell(*key)
-        flip, flip_mean = flips[key]
-        cells[f"{label}/{spp}"] = {
-            "first": encode_array(renders.first), "mean": encode_array(renders.mean),
-            "variance": encode_array(renders.variance), "flip": encode_array(flip),
-            "flip_mean": flip_mean, "spp": cell["spp"], "mse": cell["mse"],
-            "mse_excess": cell["mse_excess"],
-            "rel_mse": cell["rel_mse"], "exr": links.get(key, {})}
-        if spp == config.image_spp:
-            first = np.where(np.isfinite(renders.first), renders.first, ref)
-            hard.append(error_map(first, ref))
-    return {"scene": scene, "width": int(w), "height": int(h),
-            "samplers": [s.label for s in config.samplers], "spp": list(config.spp),
-            "image_spp": config.image_spp, "seeds": list(config.seeds),
-            "reference": encode_array(ref), "reference_spp": result.references[scene].spp,
-            "reference_exr": links.get(scene, {}).get("reference", ""),
-            "crops": hardest_regions(hard), "cells": cells}
-
-
 def _json_script(data: dict[str, Any]) -> str:
     text = json.dumps(data, allow_nan=False, separators=(",", ":"))
     return text.replace("</", "<\\/")
@@ -178,22 +129,21 @@ HELP = ("Keys (hover a viewer first): 1-9 sampler, &uarr;/&darr; previous/next s
         "x exposure 0, { } error scale, g grid / one image. Hover a pixel for its values.")
 
 
-def viewer_sections(result: StudyResult,
-                    links: dict[tuple[str, str, int] | str, dict[str, str]]) -> list[str]:
-    """The HTML of every scene's viewer (scenes with a reference and images)."""
+def viewer_sections(result: StudyResult, data: dict[str, dict[str, Any]]) -> list[str]:
+    """The HTML of every scene's viewer; ``data``: each scene's viewer data
+    (:func:`~.data.write_viewer_data`; scenes without images have none)."""
     parts = []
     for index, scene in enumerate(result.scenes):
-        if not any(key[0] == scene for key in result.renders):
+        if scene not in data:
             continue
-        data = _clean_floats(scene_data(result, scene, links))
+        scene_data = _clean_floats(data[scene])
         parts.append(
             f"<h3 id='viewer-{index}'>{html.escape(scene)}</h3>"
             f"<div class='mcrt-viewer' tabindex='0' data-scene='{html.escape(scene)}' "
             f"data-help='{HELP}'>"
-            f"<script type='application/json' class='vw-data'>{_json_script(data)}</script>"
+            f"<script type='application/json' class='vw-data'>{_json_script(scene_data)}</script>"
             "<noscript>The viewer needs JavaScript.</noscript></div>")
     return parts
 
 
-__all__ = ["CROPS", "HELP", "decode_array", "encode_array", "flip_map", "hardest_regions",
-           "scene_data", "viewer_assets", "viewer_sections"]
+__all__ = ["CROPS", "HELP", "flip_map", "hardest_regions", "viewer_assets", "viewer_sections"]

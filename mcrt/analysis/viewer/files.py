@@ -1,10 +1,14 @@
 """A study's images as EXR files next to its report, for tev or any other viewer.
 
-``exr/<scene>/reference.exr`` and, per measured cell,
+``exr/<scene>/reference.exr`` (with its ``stderr``, ``variance`` and ``count``
+layers, and ``effective_count`` for a filtered reference, when the reference is
+in mcrt's reference cache, as a study leaves it) and, per measured cell,
 ``exr/<scene>/<sampler>_<spp>spp_mean.exr`` (the mean over seeds, with the
 per-pixel variance across seeds as the ``variance.Y`` layer) and
 ``exr/<scene>/<sampler>_<spp>spp_seed<first seed>.exr`` (the first seed's render
-as rendered). Float32, written atomically by :func:`mcrt.io.write_exr`.
+as rendered). Float32, written atomically by :func:`mcrt.io.write_exr`, each
+header saying how the file was made (scene file and digest, parameters, filter,
+plan, sampler, spp, seeds, variant, versions: :mod:`.headers`).
 """
 
 from __future__ import annotations
@@ -15,8 +19,6 @@ import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import quote
-
-import numpy as np
 
 if TYPE_CHECKING:
     from ..study import StudyResult
@@ -57,32 +59,36 @@ def write_exrs(result: StudyResult, directory: str | os.PathLike[str]) -> Links:
     URLs) by cell key ``(scene, sampler, spp)`` -> ``{"mean", "first"}`` and by
     scene -> ``{"reference"}``."""
     from ...io import write_exr
+    from ...io.parallel import write_all
+    from .headers import cell_header, describe_scene, reference_file, study_header
 
     directory = Path(directory)
     paths = exr_paths(result, directory)
     seed = result.config.seeds[0]
+    common = study_header(result)
 
     def link(path: Path) -> str:
         return quote(path.relative_to(directory).as_posix())
 
     links: Links = {}
-    for scene in result.scenes:
+    records = {spec.name: describe_scene(result, spec) for spec in result.config.scenes
+               if spec.name in result.scenes}
+    for scene, record in records.items():
         path = paths[f"{scene}/reference"]
         path.parent.mkdir(parents=True, exist_ok=True)
-        info = result.references[scene]
-        write_exr(path, {"rgb": np.asarray(result.reference_images[scene], np.float32)},
-                  {"scene": scene, "spp": int(info.spp), "sampler": info.sampler})
+        layers, header = reference_file(result, record)
+        write_exr(path, layers, {**common, **header, "mcrt_kind": "study_reference"})
         links[scene] = {"reference": link(path)}
     for (scene, label, spp), renders in result.renders.items():
         if f"{scene}/{label}/{spp}/mean" not in paths:
             continue
-        meta: dict[str, str | int | float] = {"scene": scene, "sampler": label, "spp": spp,
-                "spp_effective": int(result.cell(scene, label, spp)["spp"])}
+        meta = {**common, **cell_header(result, records[scene], label, spp)}
         mean = paths[f"{scene}/{label}/{spp}/mean"]
         first = paths[f"{scene}/{label}/{spp}/first"]
-        write_exr(mean, {"rgb": renders.mean, "variance": renders.variance},
-                  {**meta, "seeds": len(result.config.seeds)})
-        write_exr(first, {"rgb": renders.first}, {**meta, "seed": seed})
+        write_all(lambda: write_exr(mean, {"rgb": renders.mean, "variance": renders.variance},
+                                    {**meta, "mcrt_kind": "study_mean"}),
+                  lambda: write_exr(first, {"rgb": renders.first},
+                                    {**meta, "mcrt_kind": "study_seed", "seed": seed}))
         links[(scene, label, spp)] = {"mean": link(mean), "first": link(first)}
     return links
 
