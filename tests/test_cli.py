@@ -170,3 +170,12 @@ def test_render_command_does_not_import_the_analysis_stack():
             "except SystemExit:\n"
             "    pass\n")
     assert _modules_after(code) & {"matplotlib", "scipy", "colour"} == set()
+
+
+def test_adaptive_render_notes_nothing_about_a_sample_count_it_does_not_use(tmp_path, capsys):
+    """--spp is an adaptive render's budget, not a sampler's count: no rounding note."""
+    edges = Path(__file__).resolve().parents[1] / "scenes" / "edges.xml"
+    code, _, err = run_cli(capsys, "render", str(edges), "--adaptive", "--sampler", "jittered",
+                           "--spp", "128", "-D", "width=16", "-D", "height=16",
+                           "-o", str(tmp_path / "a"))
+    assert code == 0 and "rounding up" not in err, err

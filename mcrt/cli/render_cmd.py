@@ -14,6 +14,7 @@ import functools
 import json
 import logging
 import shlex
+from contextlib import nullcontext
 from dataclasses import asdict
 from pathlib import Path
 
@@ -25,7 +26,13 @@ from ..core.executor import cluster_address
 from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
-from ..core.sampling import check_sampler_name, make_sampler, sampler_fingerprint, sampler_name
+from ..core.sampling import (
+    check_sampler_name,
+    make_sampler,
+    quiet_sampler_warnings,
+    sampler_fingerprint,
+    sampler_name,
+)
 from ..core.sampling import sampler_params as sampler_params_of
 from ..core.scene_files import scene_digest
 from ..core.trace import film_grid_size
@@ -105,7 +112,11 @@ def run(args: argparse.Namespace) -> int:
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
     spp = args.spp or scene_sampler.sample_count()
-    sampler = make_sampler(name, spp, **sampler_params) if args.sampler else scene_sampler
+    # An adaptive render sets its own batch counts: a note on rounding --spp (its budget)
+    # would be about a sample count it never uses.
+    quiet = quiet_sampler_warnings() if getattr(args, "adaptive", False) else nullcontext()
+    with quiet:
+        sampler = make_sampler(name, spp, **sampler_params) if args.sampler else scene_sampler
     stem = output_stem(args.output, f"{Path(args.scene).stem}_{name}")
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
     adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)

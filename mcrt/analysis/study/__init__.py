@@ -87,6 +87,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from .checks import check_config
 from .config import (
     MAX_NAME_BYTES,
     MIN_REFERENCE_FACTOR,
@@ -98,7 +99,6 @@ from .config import (
     SceneSpec,
     StudyConfig,
     cell_keys,
-    check_config,
     load_config,
     parse_config,
 )

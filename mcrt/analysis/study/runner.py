@@ -27,8 +27,9 @@ from ...core.timing import Sample, machine, round_orders
 from ...errors import McrtError
 from ..filter_noise import filter_correlation, variance_factor
 from ..metrics import REL_MSE_EPSILON, reference_noise_floor
+from .checks import check_config
 from .conclude import conclude, timing_verdict
-from .config import SamplerSpec, SceneSpec, StudyConfig, cell_keys, check_config
+from .config import SamplerSpec, SceneSpec, StudyConfig, cell_keys
 from .seeds import SeedRender, SeedTask, collect, render_seed
 from .store import StudyState, reference_fingerprint
 from .summary import (

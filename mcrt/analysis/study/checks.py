@@ -1,0 +1,65 @@
+"""The checks a study runs before rendering: every scene loads as the run will
+load it, every sampler is made at every spp (one-line :class:`ConfigError`s)."""
+
+from __future__ import annotations
+
+import logging
+
+from ...errors import McrtError
+from ..aliasing import MIN_SIZE, measurable
+from .config import ConfigError, SceneSpec, StudyConfig
+
+log = logging.getLogger("mcrt.compare")
+
+
+def check_config(config: StudyConfig) -> None:
+    """Load every scene and make every sampler, raising a one-line error on the
+    first failure; fills ``config.effective_spp``."""
+    for spec in config.scenes:
+        _check_scene(spec)
+    _check_samplers(config)
+    if config.reference.sampler != "independent":
+        log.warning("reference sampler %s: its per-sample standard error overestimates the "
+                    "noise of a stratified estimate, so the noise floor subtracted from every "
+                    "MSE is too large; 'independent' makes it exact", config.reference.sampler)
+    for sampler in config.samplers:
+        changed = [f"{s}->{config.effective_spp[(sampler.label, s)]}" for s in config.spp
+                   if config.effective_spp[(sampler.label, s)] != s]
+        if changed:
+            log.info("%s rounds sample counts: %s", sampler.label, ", ".join(changed))
+
+
+def _check_scene(spec: SceneSpec) -> None:
+    """The scene loads, mcrt can drive its integrator, its film suits the study."""
+    from ...core.render import film_base_channels
+    from ...render.plan import plan_scene
+
+    try:
+        scene = plan_scene(spec.path, spec.params).scene  # refuses integrators mcrt cannot drive
+    except McrtError as error:
+        raise ConfigError(f"scene {spec.name!r}: {error}") from None
+    film = scene.sensors()[0].film()  # any filter: references develop with the film's own
+    channels = film_base_channels(film)
+    if channels[:1] == ["Y"]:
+        raise ConfigError(f"scene {spec.name!r}: the film stores luminance only (channels "
+                          f"{' '.join(channels)}); the study measures colour errors against "
+                          f"an RGB reference: give the film pixel_format rgb")
+    width, height = (int(v) for v in film.crop_size())  # the image the study measures
+    if not measurable((height, width)):
+        log.info("scene %r renders %dx%d pixels: its cells get no aliasing score (n/a; the "
+                 "measure needs %dx%d), the errors are measured as usual", spec.name, width,
+                 height, MIN_SIZE, MIN_SIZE)
+
+
+def _check_samplers(config: StudyConfig) -> None:
+    """Every sampler at every spp; records its effective sample count."""
+    from ...core.sampling import make_sampler, quiet_sampler_warnings
+
+    with quiet_sampler_warnings():
+        for sampler in config.samplers:
+            for spp in config.spp:
+                try:
+                    obj = make_sampler(sampler.name, spp, **sampler.params)
+                except McrtError as error:
+                    raise ConfigError(f"sampler {sampler.label!r} at {spp} spp: {error}") from None
+                config.effective_spp[(sampler.label, spp)] = int(obj.sample_count())
