@@ -75,7 +75,7 @@ def no_render(monkeypatch):
     (["render", CORNELL, "-D", "unused=1"], "unused parameters"),
     (["render", CORNELL, "-D", "spp=abc"], "could not parse integer"),
     (["render", CORNELL, "-o", "/proc/no/such/dir/img"], "cannot create output directory"),
-    (["render"], "required"),
+    (["render"], "give the scene to render (SCENE.xml), or --from FILE.exr"),
     (["nosuchcommand"], "invalid choice"),
     (["render", CORNELL, "-D", "res=0"], "the film has 0x0 pixels"),
     (["render", CORNELL, "-D", "res=0", "--adaptive"], "the film has 0x0 pixels"),

@@ -267,17 +267,18 @@ def test_recorded_command_lines_keep_every_setting_that_changes_pixels():
 
     import mitsuba as mi
 
+    from mcrt.cli._render_record import job_text
     from mcrt.cli.compare_cmd import resume_command
-    from mcrt.cli.render_cmd import _job
 
     line = resume_command(argparse.Namespace(config="s.toml", quiet=True, variant=mi.variant()),
                           Path("out"))
     assert shlex.split(line) == ["mcrt", "-q", "--variant", mi.variant(), "compare", "s.toml",
                                  "-o", "out"]
-    args = argparse.Namespace(scene="s.xml", seed=3, defines=["res=32"], effect=None,
+    args = argparse.Namespace(scene="s.xml", sampler="jittered", seed=3, defines=["res=32"],
+                              effect=None,
                               sampler_params=["jitter=0.5"], multisample=True, adaptive=True,
                               adaptive_threshold=0.02)
-    words = shlex.split(_job(args, "jittered", 64, Path("o/img")))
+    words = shlex.split(job_text(args, 64, Path("o/img")))
     assert words[:3] == ["mcrt", "--variant", mi.variant()]
     for pair in (["-P", "jitter=0.5"], ["-D", "res=32"], ["--seed", "3"], ["--spp", "64"]):
         assert any(words[i:i + 2] == pair for i in range(len(words))), pair

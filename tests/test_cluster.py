@@ -8,6 +8,7 @@ worker processes (``local:2``: two processes, one Dr.Jit thread each).
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -288,7 +289,8 @@ def test_an_included_files_mesh_is_the_main_scenes_folders(tmp_path):
 
 def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
     """The quick study (configs/quick.toml) in this process and on `local:2`
-    (references shared through the cache): results.json equal apart from times."""
+    (references shared through the cache): results.json and results.csv equal
+    apart from times, every other column bit for bit (as written: repr of floats)."""
     quick = ROOT / "configs" / "quick.toml"
     here = _mcrt("-q", "compare", str(quick), "-o", str(tmp_path / "here"))
     assert here.returncode == 0, here.stderr[-2000:]
@@ -298,6 +300,11 @@ def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
     a = json.loads((tmp_path / "here" / "results.json").read_text())
     b = json.loads((tmp_path / "there" / "results.json").read_text())
     assert _untimed(a) == _untimed(b)
+    rows = [_untimed(list(csv.DictReader((tmp_path / d / "results.csv").open())))
+            for d in ("here", "there")]
+    assert len(rows[0]) == 30 and rows[0] == rows[1]  # 2 scenes x 5 samplers x 3 spp
+    untimed_columns = set(rows[0][0])
+    assert {"aliasing_ratio", "aliasing_ratio_z", "mse", "bias", "verdict"} <= untimed_columns
 
 
 def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):

@@ -173,14 +173,14 @@ def test_plugin_is_a_global_option():
 def test_recorded_command_lines_load_the_same_plugins(tmp_path):
     """A render's recorded command line and a study's resume command carry the
     plugins the command line loaded (absolute paths)."""
+    from mcrt.cli._render_record import job_text
     from mcrt.cli.compare_cmd import resume_command
-    from mcrt.cli.render_cmd import _job
 
     plugin = tmp_path / "p.py"
-    args = argparse.Namespace(scene="s.xml", seed=3, defines=None, effect=None,
+    args = argparse.Namespace(scene="s.xml", sampler="mine", seed=3, defines=None, effect=None,
                               sampler_params=None, multisample=False, adaptive=False,
                               plugin_files=[plugin])
-    words = shlex.split(_job(args, "mine", 16, Path("o/img")))
+    words = shlex.split(job_text(args, 16, Path("o/img")))
     assert words[:5] == ["mcrt", "--variant", mi.variant(), "--plugin", str(plugin)]
     assert words[5] == "render"
     line = resume_command(argparse.Namespace(config="s.toml", quiet=False, variant=None,

@@ -404,15 +404,24 @@ def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
 
 def reference_metadata(ref: Reference, scene_path: str | Path,
                        params: dict[str, str] | None) -> dict[str, str | int | float]:
-    """EXR metadata of a reference. Sample totals are exact Python ints
-    (``write_exr`` stores those beyond int32 as decimal strings)."""
-    from .. import __version__
+    """EXR metadata of a reference: how it was made (:mod:`mcrt.core.provenance`:
+    the command that renders it again, scene digest, versions) and its sample
+    totals, exact Python ints (``write_exr`` stores those beyond int32 as decimal
+    strings)."""
+    from ..core.provenance import absolute, command_text, plugin_files, scene_facts, software
 
     plan = ref.plan
+    params = dict(params or {})
+    words = [absolute(scene_path), "--spp", plan.requested_spp if plan else ref.spp,
+             "--sampler", ref.sampler, "--seed", ref.seed,
+             *(["--spp-per-pass", plan.pass_spp] if plan else []),
+             *[w for k, v in params.items() for w in ("-D", f"{k}={v}")]]
     return {
-        "mcrt_version": __version__, "mcrt_kind": "reference",
-        "scene": str(scene_path),
-        "params": " ".join(f"{k}={v}" for k, v in (params or {}).items()),
+        **software(), "mcrt_kind": "reference",
+        "command": command_text("reference", *words, plugins=plugin_files(ref.sampler)),
+        "scene": str(scene_path), **scene_facts(scene_path, params),
+        "params": " ".join(f"{k}={v}" for k, v in params.items()),
+        **_filter_of(scene_path, params),
         "sampler": ref.sampler, "seed": ref.seed, "spp": ref.spp,
         "requested_spp": plan.requested_spp if plan else ref.spp,
         "passes": ref.passes, "pass_plan": plan.describe() if plan else "",
@@ -421,3 +430,13 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
         "max_pixel_count": int(ref.stats.count.max()),
         "cache_key": ref.key,
     }
+
+
+def _filter_of(scene_path: str | Path, params: dict[str, str]) -> dict[str, str]:
+    """``filter``: the film's reconstruction filter the reference was developed
+    with (from the scene this process planned; nothing if it cannot be had)."""
+    try:
+        planned = planned_scene(SceneSource.of(scene_path, params), params)
+        return {"filter": str(planned.scene.sensors()[0].film().rfilter())}
+    except Exception:  # a scene gone since: the header says what it can
+        return {}

@@ -13,12 +13,10 @@ import argparse
 import functools
 import json
 import logging
-import shlex
 from contextlib import nullcontext
 from dataclasses import asdict
 from pathlib import Path
 
-from .. import __version__
 from ..cache import cache_dir
 from ..core.atomic import check_free_space, remedy
 from ..core.engine import reseeds_each_pass
@@ -55,6 +53,7 @@ from ._common import (
     positive_int,
     sampler_choices,
 )
+from ._render_record import check_replaces_same, job_text, render_metadata
 from .plan_cmd import add_effect_argument
 
 log = logging.getLogger("mcrt.render")
@@ -68,8 +67,14 @@ def add_parser(commands) -> None:
                     "far (marked partial); the same command then resumes.",
         epilog=examples("mcrt render scenes/cornell_box.xml --sampler poisson_disk --spp 64",
                         "mcrt render scenes/cornell_box.xml -D res=128 -o out/renders/",
-                        "mcrt render scenes/edges.xml --adaptive --threshold 0.05"))
-    p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
+                        "mcrt render scenes/edges.xml --adaptive --threshold 0.05",
+                        "mcrt render --from out/cornell_box_sobol.exr -o again"))
+    p.add_argument("scene", metavar="SCENE.xml", nargs="?", help="Mitsuba 3 XML scene")
+    p.add_argument("--from", dest="from_exr", metavar="FILE.exr",
+                   help="render again what FILE.exr records (any EXR mcrt wrote: a render, "
+                        "a reference, a study's image) with its settings alone, to -o OUT "
+                        "(default: FILE_again.exr beside it), and say whether the pixels are "
+                        "the same bit for bit (exit status 1 if not)")
     p.add_argument("--sampler", metavar="NAME",
                    help=f"sampler plugin (default: the scene's); one of {sampler_choices()}")
     p.add_argument("-P", "--sampler-param", dest="sampler_params", action="append",
@@ -94,6 +99,12 @@ def add_parser(commands) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.from_exr is not None:
+        from .reproduce import run_from
+
+        return run_from(args)
+    if args.scene is None:
+        raise McrtError("give the scene to render (SCENE.xml), or --from FILE.exr")
     # Everything a user can get wrong is checked before rendering starts.
     if args.sampler is not None:
         check_sampler_name(args.sampler)
@@ -121,15 +132,16 @@ def run(args: argparse.Namespace) -> int:
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
     adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
     heat_path = stem.with_name(stem.name + "_spp.png")
+    budget = adaptive_settings.max_spp if adaptive_settings is not None else spp
     with _common.removed_if_refused(exr_path.parent):  # a refused render leaves no folder
         check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
         check_output_space(exr_path.parent, scene)
         _check_memory(scene, adaptive_settings)
         cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
+        metadata = render_metadata(args, params, sampler, budget, scene, planned.plan,
+                                   adaptive_settings)
+        check_replaces_same(exr_path, metadata, named=bool(args.output))
     note_first_run()
-    metadata = render_metadata(args.scene, params, sampler, args.seed, planned.plan)
-    if getattr(args, "plugin_files", None):  # the user's plugin files the render needs
-        metadata["plugins"] = json.dumps([str(p) for p in args.plugin_files])
     if adaptive_settings is not None:
         metadata["plan"] = planned.plan.to_json()
         key = render_key(args.scene, params, overrides, name, 0, args.seed, None,
@@ -144,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
                      passes, sampler_params=metadata["sampler_params"])
     _common.check_state_files(_resume_paths(exr_path, key), "the render's checkpoint")
-    store = CheckpointStore(_resume_paths(exr_path, key), key, _job(args, name, spp, stem))
+    store = CheckpointStore(_resume_paths(exr_path, key), key, job_text(args, spp, stem))
     state = store.load()
     if state is not None:
         log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
@@ -250,43 +262,6 @@ def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) ->
     return 130
 
 
-def _job(args: argparse.Namespace, sampler: str, spp: int, stem: Path) -> str:
-    """The render in words, as a command line (recorded with its checkpoints): every
-    option that changes its pixels (the variant, the user's plugins, sampler
-    parameters, multisampling, adaptive settings), so that running it reproduces
-    the render."""
-    import mitsuba as mi
-
-    from ..plugins import command_words
-    from ._adaptive_args import cli_parameters
-
-    words = ["mcrt", "--variant", mi.variant() or "llvm_ad_rgb",
-             *command_words(getattr(args, "plugin_files", None) or []), "render", str(args.scene),
-             "--sampler", sampler, "--spp", str(spp), "--seed", str(args.seed)]
-    words += [w for p in getattr(args, "sampler_params", None) or [] for w in ("-P", p)]
-    words += [w for d in args.defines or [] for w in ("-D", d)]
-    words += [w for e in args.effect or [] for w in ("--effect", e)]
-    words += ["--multisample"] if getattr(args, "multisample", False) else []
-    if getattr(args, "adaptive", False):
-        words.append("--adaptive")
-        for p in cli_parameters():
-            value = getattr(args, f"adaptive_{p.name}", None)
-            if value is not None and p.flag != "--spp":
-                words += [p.flag, str(value)]
-    return shlex.join([*words, "-o", str(stem)])
-
-
-def render_metadata(scene: str, params: dict[str, str], sampler, seed: int, plan) -> dict:
-    """What an output's header records: everything needed to reproduce it."""
-    import mitsuba as mi
-
-    return {"mcrt_version": __version__, "scene": str(scene), "sampler": sampler_name(sampler),
-            "sampler_params": json.dumps(sampler_params_of(sampler), sort_keys=True),
-            "seed": seed, "variant": mi.variant(),
-            "defines": " ".join(f"{k}={v}" for k, v in params.items()),
-            "effects": ",".join(plan.effects_on)}
-
-
 def parse_sampler_params(items: list[str] | None, sampler: str | None) -> dict:
     """``-P key=value`` items to plugin parameters (numbers and booleans typed)."""
     params: dict = {}
@@ -345,7 +320,7 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     exr_path, png_path, heat_path = paths
     _common.check_state_files(_resume_paths(exr_path, key), "the render's checkpoint")
     store = CheckpointStore(_resume_paths(exr_path, key), key,
-                            _job(args, name, settings.max_spp, exr_path.with_suffix("")))
+                            job_text(args, settings.max_spp, exr_path.with_suffix("")))
     state = store.load()
     if state is not None:
         log.info("resuming after adaptive pass %d", state.meta["next_pass"])

@@ -235,4 +235,17 @@ def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
     return _group_channels(channels), metadata
 
 
-__all__ = ["MAIN_LAYER", "ImageIOError", "read_exr", "write_exr"]
+def read_exr_header(path: str | os.PathLike) -> dict:
+    """The metadata :func:`read_exr` returns, read without the pixels."""
+    import OpenEXR
+
+    ensure_readable(path)
+    try:
+        header = OpenEXR.File(os.fspath(path), header_only=True).header()
+    except (RuntimeError, ValueError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise read_error(path, f"not a readable OpenEXR file ({first})") from exc
+    return {k: _metadata_value(v) for k, v in header.items() if k not in STANDARD_ATTRIBUTES}
+
+
+__all__ = ["MAIN_LAYER", "ImageIOError", "read_exr", "read_exr_header", "write_exr"]

@@ -58,6 +58,7 @@ def write_exrs(result: StudyResult, directory: str | os.PathLike[str]) -> Links:
     """Write the reference and every cell's images; returns the links (relative
     URLs) by cell key ``(scene, sampler, spp)`` -> ``{"mean", "first"}`` and by
     scene -> ``{"reference"}``."""
+    from ...core.provenance import COMMAND
     from ...io import write_exr
     from ...io.parallel import write_all
     from .headers import cell_header, describe_scene, reference_file, study_header
@@ -88,7 +89,8 @@ def write_exrs(result: StudyResult, directory: str | os.PathLike[str]) -> Links:
         write_all(lambda: write_exr(mean, {"rgb": renders.mean, "variance": renders.variance},
                                     {**meta, "mcrt_kind": "study_mean"}),
                   lambda: write_exr(first, {"rgb": renders.first},
-                                    {**meta, "mcrt_kind": "study_seed", "seed": seed}))
+                                    {**meta, "mcrt_kind": "study_seed", "seed": seed,
+                                     COMMAND: f"{meta[COMMAND]} --seed {seed}"}))
         links[(scene, label, spp)] = {"mean": link(mean), "first": link(first)}
     return links
 

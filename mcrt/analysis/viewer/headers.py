@@ -23,6 +23,9 @@ file taken out of its report can be reproduced and compared:
                     first seed's render
 ``variant``         Mitsuba's variant; ``mcrt_version``, ``mitsuba_version``,
                     ``drjit_version`` as the study ran
+``command``         ``mcrt render`` of one seed's render (``--seed`` added on
+                    a seed's file), the reference's ``mcrt reference``: what
+                    ``mcrt render --from FILE.exr`` runs
 ==================  ==========================================================
 
 The reference's file has the sampler, seed and spp of the reference and, when
@@ -40,13 +43,16 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...core.provenance import COMMAND, absolute, command_text, plugin_files
+
 if TYPE_CHECKING:
     from ..reference import Reference
-    from ..study import SceneSpec, StudyResult
+    from ..study import SamplerSpec, SceneSpec, StudyResult
 
 log = logging.getLogger("mcrt.report")
 
@@ -152,9 +158,30 @@ def cell_header(result: StudyResult, record: SceneRecord, label: str, spp: int) 
     code = sampler_fingerprint(sampler.name)
     if code:
         header["sampler_code"] = code
+    header[COMMAND] = seed_command(result, record, sampler, spp)
     if record.subframes is not None:
         header["subframes"] = int(record.subframes(effective))
     return header
+
+
+def seed_command(result: StudyResult, record: SceneRecord, sampler: SamplerSpec, spp: int
+                 ) -> str:
+    """The ``mcrt render`` command of one seed's render of a cell, without
+    ``--seed`` (a seed's file adds it; a mean file's seeds are ``seeds``)."""
+    scene = next(s for s in result.config.scenes if s.name == record.scene)
+    words = [absolute(scene.path),
+             *[w for k, v in scene.params.items() for w in ("-D", f"{k}={v}")],
+             "--sampler", sampler.name,
+             *[w for k, v in sampler.params.items() for w in ("-P", f"{k}={_cli_value(v)}")],
+             "--spp", spp]
+    plugins: list[str | Path] = [*result.config.plugins, *plugin_files(sampler.name)]
+    return command_text("render", *words, plugins=plugins,
+                        variant=str(result.environment.get("variant", "")))
+
+
+def _cli_value(value: Any) -> str:
+    """A sampler parameter as ``-P key=value`` writes it (booleans as true/false)."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
 
 def reference_file(result: StudyResult, record: SceneRecord
@@ -170,7 +197,8 @@ def reference_file(result: StudyResult, record: SceneRecord
     if ref is None:
         header["reference_stats"] = f"unavailable: {record.reference_note}"
         return {"rgb": np.asarray(result.reference_images[record.scene], np.float32)}, header
-    meta = reference_metadata(ref, str(record.header["scene_path"]), None)
+    meta = reference_metadata(ref, str(record.header["scene_path"]),
+                              json.loads(str(record.header["scene_params"])))
     for key in ("scene", "params", "mcrt_kind", "mcrt_version", "spp", "requested_spp"):
         meta.pop(key, None)  # said above, as every file of the study says it
     layers = reference_layers(ref)

@@ -1,0 +1,105 @@
+"""What every EXR file mcrt writes says about how it was made.
+
+Each writer (``mcrt render``, ``mcrt reference``, a study's report) puts these
+keys in its file's header, beside its own settings:
+
+================  ============================================================
+``mcrt_kind``     what wrote it: ``render``, ``render_adaptive``, ``reference``,
+                  ``study_mean``, ``study_seed`` or ``study_reference``
+``command``       an ``mcrt`` command line that renders the same pixels (the
+                  scene and plugin files by absolute path, no ``-o``); for a
+                  ``study_mean`` file the command of one seed's render without
+                  ``--seed``, run once for each seed of ``seeds``
+``scene_digest``  SHA-256 of the scene's content (its XML, the files it
+                  includes and names: :func:`~mcrt.core.scene_files.scene_digest`)
+``variant``       Mitsuba's variant
+``*_version``     ``mcrt_version``, ``mitsuba_version``, ``drjit_version``
+================  ============================================================
+
+``mcrt render --from FILE.exr`` runs a file's ``command`` again and says
+whether the pixels came out the same (:mod:`mcrt.cli.reproduce`).
+"""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from ..errors import McrtError
+
+#: The header key of the command line that reproduces a file's pixels.
+COMMAND = "command"
+
+
+def software() -> dict[str, str]:
+    """The variant and the versions of mcrt, Mitsuba and Dr.Jit in this process."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from .. import __version__
+
+    return {"variant": str(mi.variant() or ""), "mcrt_version": __version__,
+            "mitsuba_version": str(mi.__version__),
+            "drjit_version": str(dr.__version__)}  # type: ignore[attr-defined]
+
+
+def scene_facts(scene: str | Path, params: dict[str, str]) -> dict[str, str]:
+    """``scene_digest`` of a scene with its parameters (``scene_problem`` instead
+    when its files cannot be read: the output is written all the same)."""
+    from .scene_files import scene_digest
+
+    try:
+        return {"scene_digest": scene_digest(scene, params)}
+    except Exception as error:  # a scene gone or unreadable: say so, keep going
+        return {"scene_problem": f"no digest: {' '.join(str(error).split())}"}
+
+
+def command_text(command: str, *words: Any, plugins: Iterable[str | Path] = (),
+                 variant: str = "") -> str:
+    """``mcrt --variant V [--plugin P]... COMMAND WORDS...`` as one shell-quoted
+    line (plugin files by absolute path, so that it runs from any directory;
+    ``variant`` default: this process's)."""
+    import mitsuba as mi
+
+    prefix = ["mcrt", "--variant", variant or str(mi.variant() or "llvm_ad_rgb")]
+    files = dict.fromkeys(absolute(p) for p in plugins)
+    prefix += [w for p in files for w in ("--plugin", p)]
+    return shlex.join([*prefix, command, *(str(w) for w in words)])
+
+
+def plugin_files(*samplers: str) -> list[str]:
+    """The plugin files that registered the user's samplers among ``samplers``
+    (what a command line needs to load them again)."""
+    from ..samplers import registry
+
+    files = []
+    for name in samplers:
+        origin = registry.info(name).origin if name in registry.names() else ""
+        if origin.endswith(".py") and Path(origin).is_file():
+            files.append(origin)
+    return files
+
+
+def absolute(path: str | Path) -> str:
+    """A scene path as a recorded command names it: absolute."""
+    return str(Path(path).expanduser().resolve())
+
+
+def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
+    """The words of a header's ``command`` after ``mcrt`` (an error naming the
+    file if it has none: not written by mcrt, or by a version before commands
+    were recorded)."""
+    text = header.get(COMMAND)
+    if not isinstance(text, str) or not text.strip():
+        raise McrtError(f"{path} records no command to render it again (not written by "
+                        f"mcrt, or by an older version of it)")
+    words = shlex.split(text)
+    if not words or words[0] != "mcrt":
+        raise McrtError(f"{path}: its command {text!r} is not an mcrt command")
+    return words[1:]
+
+
+__all__ = ["COMMAND", "absolute", "command_text", "command_words", "plugin_files", "scene_facts",
+           "software"]
