@@ -208,3 +208,14 @@ def test_from_refuses_in_one_line(capsys, setup, argv, message):
         write_exr(Path("a.exr"), {"rgb": np.zeros((2, 2, 3))}, {"x": 1})
     code, _, err = run_cli(capsys, "render", "--from", "a.exr", *argv)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_from_renders_a_demo_image_again(capsys):
+    """`mcrt demo`'s images record the same header keys and command."""
+    assert run_cli(capsys, "-q", "demo", "--samplers", "sobol", "--rounds", "1",
+                   "--reference-factor", "1", "-o", "demo")[0] == 0
+    for name in ("cornell_box_sobol.exr", "checkerboard_reference.exr"):
+        header = _header(Path("demo") / name)
+        assert header["mitsuba_version"] == mi.__version__ and header["scene_digest"]
+        code, out, _ = _again(capsys, Path("demo") / name)
+        assert code == 0 and "bit for bit" in out, out

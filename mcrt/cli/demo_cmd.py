@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..analysis.metrics import rel_mse
 from ..core.atomic import atomic_path
+from ..core.provenance import COMMAND, absolute, command_text, scene_facts, software
 from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler
 from ..core.timing import run_interleaved, summarise
@@ -86,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
         reference = render_film(scene, make_sampler("jittered", ref_spp), seed=0,
                                 progress=not args.quiet)
         write_exr(out / f"{stem}_reference.exr", {"rgb": reference.image},
-                  {"sampler": "jittered", "spp": reference.spp, "role": "reference"})
+                  {**_header(paths, stem, "jittered", ref_spp, 0), "spp": reference.spp,
+                   "role": "reference"})
         sheet = []
         results: dict[str, FilmRender] = {}
 
@@ -105,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             error = rel_mse(result.rgb, reference.rgb)
             stem_out = out / f"{stem}_{name}"
             write_exr(stem_out.with_suffix(".exr"), {"rgb": result.image},
-                      {"sampler": name, "spp": result.spp, "seed": 1})
+                      {**_header(paths, stem, name, spp, 1), "spp": result.spp})
             write_png(stem_out.with_suffix(".png"), result.rgb)
             rows.append({"scene": stem, "sampler": name, "spp": result.spp,
                          "seconds": round(summary.median, 4),
@@ -127,3 +129,13 @@ def run(args: argparse.Namespace) -> int:
           f"warm-up render per sampler; wrote "
           f"images, {', '.join(f'{s}_comparison.png' for s in scenes)} and results.csv to {out}")
     return 0
+
+
+def _header(paths: list[Path], stem: str, sampler: str, spp: int, seed: int) -> dict:
+    """A demo image's header: what ``mcrt render`` records, with the command that
+    renders the same pixels (:mod:`mcrt.core.provenance`)."""
+    path = next(p for p in paths if p.stem == stem)
+    return {**software(), "mcrt_kind": "render", "scene": str(path), **scene_facts(path, {}),
+            "sampler": sampler, "spp_requested": spp, "seed": seed,
+            COMMAND: command_text("render", absolute(path), "--sampler", sampler, "--spp", spp,
+                                  "--seed", seed)}
