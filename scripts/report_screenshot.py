@@ -44,6 +44,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.keys:
             ActionChains(driver).send_keys(args.keys).perform()
         canvas = viewer.find_element("css selector", "[data-panel='1'] canvas")
+        # images load lazily: wait until every panel's canvas has drawn its image
+        panels = viewer.find_elements("css selector", "[data-panel] canvas")
+        WebDriverWait(driver, 60).until(
+            lambda _: all(c.get_attribute("data-drawn") for c in panels if c.is_displayed()))
         ActionChains(driver).move_to_element(canvas).perform()  # fill the readout
         args.png.parent.mkdir(parents=True, exist_ok=True)
         viewer.screenshot(str(args.png))

@@ -38,7 +38,7 @@ geometry. mcrt adds it:
   centre 0.5 for ``uniform_grid``), so every sub-frame time is uniform over the
   shutter (unbiased over seeds) and the sub-frames are evenly spaced (the least
   strobing; a separate jitter per stratum is available as ``mode="jittered"``
-  and strobes about 2-3x more, see BENCHMARKS.md). Each pass traces
+  and strobes 2.5-5x more, see BENCHMARKS.md). Each pass traces
   ``spp / n`` samples of every pixel and the sampler advances between passes,
   so the film, lens, light and BSDF dimensions stay one stratified pattern per
   pixel across the sub-frames.

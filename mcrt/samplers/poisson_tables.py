@@ -143,7 +143,7 @@ __all__ = [
 ]
 
 #: Largest supported set size. First-time generation of its 8 tables takes about
-#: one second on a 2-core machine (see BENCHMARKS.md); the cost is linear in n.
+#: 1.7 s on a 2-core machine (see BENCHMARKS.md); the cost is linear in n.
 MAX_POINTS = 16384
 
 #: Version of the generator's output; part of the cache file name.
