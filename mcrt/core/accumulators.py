@@ -51,6 +51,8 @@ def _finite(values: Sequence[Any]) -> mi.Bool:
 def release_cached_memory() -> None:
     """Return the buffers Dr.Jit keeps for reuse (freed pass data, copies) to the
     system, so that the next allocations of other sizes do not add to the peak."""
+    if dr.flag(dr.JitFlag.FreezingScope):  # a frozen render is recorded: nothing to return
+        return
     dr.sync_thread()
     dr.flush_malloc_cache()
 

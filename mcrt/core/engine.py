@@ -38,7 +38,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
-from ..samplers._hash import hash_keys_int
+from ..samplers._hash import hash_keys, hash_keys_int
 from ..samplers._stratified import split_sample
 from ..samplers.base import is_mcrt_sampler
 from .memory import BYTES_PER_LANE, KERNEL_BYTES, lane_budget
@@ -208,6 +208,8 @@ def resume_seed(sampler: mi.Sampler, seed: int, passes_done: int) -> int:
     """
     if passes_done == 0 or is_mcrt_sampler(sampler):
         return seed
+    if not isinstance(seed, int):  # a seed on the device (a replayed render's input)
+        return hash_keys(mi.UInt32(seed), passes_done, 0x2E5)
     return hash_keys_int(seed, passes_done, 0x2E5)
 
 

@@ -24,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
+from . import replay
 from .accumulators import FilmAccumulator, MomentsAccumulator, release_cached_memory
 from .engine import (
     MAX_LANES_PER_PASS,
@@ -258,9 +259,9 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
         return Checkpoint({"settings": [spp, run.shape.passes, seed], "done": done,
                            "seconds": seconds}, accumulator.state())
 
-    def result() -> FilmRender:
+    def result(developed: Any = None) -> FilmRender:
         release_cached_memory()  # the passes' buffers
-        developed = accumulator.develop()
+        developed = accumulator.develop() if developed is None else developed
         array = np.array(developed, dtype=np.float32)
         del developed
         release_cached_memory()
@@ -282,6 +283,16 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
         if on_pass is not None:
             on_pass(index, count)
 
+    why = replay.why_not(scene, run.shape, progress, checkpoints=save, resume=resume,
+                         subframes=on_pass, tasks=pass_task)
+    if why is None and run.done == 0:
+        replayed = replay.render(scene, sampler, run.shape, seed, sensor, channels)
+        if replayed is not None:  # the same bits as the passes below would give
+            accumulator.sums, accumulator.nonfinite = replayed.sums, replayed.nonfinite
+            run.done, run.seconds = run.shape.passes, replayed.seconds
+            return result(replayed.image)
+    elif why is not None:
+        replay.note(why)
     try:
         if pass_task is None:
             _run(scene, sampler, accumulator, run, seed, sensor, progress,

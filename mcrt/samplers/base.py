@@ -210,6 +210,12 @@ class McrtSampler(mi.Sampler):
         self._key = self._seed_key(seed)
         self._set_lanes(pixel, sample, self.sample_count() if stride is None else int(stride))
 
+    def frozen_inputs(self) -> tuple:
+        """Device arrays the sampler reads besides its lane state (a table of
+        point sets, say): a replayed render (:mod:`mcrt.core.replay`) takes them
+        as inputs. None by default."""
+        return ()
+
     def set_film_width(self, width: object) -> None:
         """The width of the pixel grid about to be rendered: ignored by samplers
         whose pixels are independent (``zsobol`` orders pixels along the film)."""
@@ -236,7 +242,7 @@ class McrtSampler(mi.Sampler):
         seed = mi.UInt32(seed)
         if dr.width(seed) != 1:
             raise SamplerError("seed() expects a single seed value")
-        if _literal_or_evaluated(seed):
+        if _literal_or_evaluated(seed) and not dr.flag(dr.JitFlag.FreezingScope):
             return dr.opaque(mi.UInt32, hash_keys_int(self._base_seed, int(seed[0])))
         key = hash_keys(mi.UInt32(self._base_seed), seed)  # a new variable
         dr.make_opaque(key)

@@ -226,6 +226,9 @@ class PointSetSampler(McrtSampler):
                 f"randomness, too little to be unbiased; give at least {MIN_SETS_UNSHIFTED} "
                 f"random sets, or randomize='shift' or 'xor' (one deterministic set)")
 
+    def frozen_inputs(self) -> tuple:
+        return self._table()[:2]
+
     def _table(self) -> tuple[mi.Float, mi.Float, int]:
         n = self.sample_count()
         source = self._source

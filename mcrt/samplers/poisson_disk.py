@@ -73,6 +73,9 @@ class PoissonDiskSampler(McrtSampler):
     def _sample_count_changed(self, spp: int) -> None:
         _device_tables(spp)  # generate / load now, not in the middle of a render
 
+    def frozen_inputs(self) -> tuple:
+        return _device_tables(self.sample_count())[:2]
+
     def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
         return stratified_1d(key, sample, self.sample_count(), 1.0, active)
 

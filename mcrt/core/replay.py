@@ -1,0 +1,180 @@
+"""Replayed film renders: traced once, then replayed with a new seed (Dr.Jit's frozen functions).
+
+A film render of a scene traces the integrator (Python and C++ building Dr.Jit
+expressions), looks its kernels up in the kernel cache and launches them. For the
+small images of a study, tracing is most of the time. :func:`render` records a
+whole render (every pass, the film's development) with :func:`drjit.freeze` the
+first time a (scene, sampler, pass shape) is rendered, and later renders of it
+with another seed replay the recorded kernels without tracing: the same kernels
+on the same inputs, so the same bits as rendering unfrozen (tested for every
+sampler, filters, AOVs, variants and several passes in tests/test_replay.py).
+
+A recording is keyed by everything the traced code decides on the host: the
+scene object (kept alive by its entry, so its id is never reused), the sensor,
+the sampler's plugin, parameters, base seed and sample count (Mitsuba's samplers
+by what a clone of them draws, as some hide their base seed), the user's sampler
+code, the pass shape, the film's channels and the variant. The seed is the one
+input that changes. What cannot be replayed renders unfrozen, and the first
+render of each kind says why (a note on ``mcrt.render``):
+
+* renders that report or change something between passes: checkpoints, resumed
+  renders, motion-blur sub-frames (the scene moves between passes), progress
+  bars over several passes, passes run as tasks elsewhere;
+* integrators written in Python by mcrt (``multisample`` counts its shading
+  evaluations on the host);
+* whatever fails to record (e.g. a sampler that reads arrays on the host while
+  tracing): it is remembered and never tried again in the process.
+
+``MCRT_REPLAY=0`` renders everything unfrozen (for comparisons and A/B benchmarks).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+
+from .accumulators import FilmAccumulator
+from .engine import PassRun, PassShape, run_passes, sampling_integrator
+from .sampling import sampler_fingerprint, sampler_name, sampler_params
+
+log = logging.getLogger("mcrt.render")
+
+#: The environment variable that switches replay off (``0``).
+ENV = "MCRT_REPLAY"
+
+#: Recordings kept per process (least recently used dropped first); each holds its
+#: kernels and keeps its scene alive.
+LIMIT = 16
+
+
+@dataclass
+class Replayed:
+    """A replayed render's outputs, still on the device, and its wall time."""
+
+    image: Any  # the developed film (TensorXf)
+    nonfinite: Any  # UInt32 per grid pixel
+    sums: list[Any]  # Float64 per channel: the accumulator's state
+    seconds: float
+
+
+class _Recording:
+    """What the call that records uses: the caller's sampler and the pass shape.
+    A plain object, so :func:`drjit.freeze` keys it by identity (one, for the
+    process) and never traverses the sampler, whose state changes as it renders."""
+
+    sampler: Any = None
+    shape: PassShape | None = None
+    sensor: int = 0
+    channels: int = 0
+
+
+_NOW = _Recording()
+_ENTRIES: OrderedDict[tuple, tuple[mi.Scene, Callable[..., Any]]] = OrderedDict()
+_FAILED: dict[tuple, str] = {}
+_NOTED: set[str] = set()
+
+
+def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any]]:
+    """The render a frozen function records: every pass, then the film developed
+    (``tables``: the sampler's own device arrays, inputs like the scene's)."""
+    now = _NOW
+    film = scene.sensors()[now.sensor].film()
+    accumulator = FilmAccumulator(film, now.channels)
+    assert now.shape is not None
+    run_passes(scene, now.sampler, accumulator, PassRun(now.shape), seed, sensor=now.sensor)
+    return accumulator.develop(), accumulator.nonfinite, accumulator.sums
+
+
+def why_not(scene: mi.Scene, shape: PassShape, progress: bool, **kept: Any) -> str | None:
+    """Why a render cannot be replayed (None: it can). ``kept``: the render's
+    checkpoint, resume, sub-frame and task arguments (any not None refuses)."""
+    if os.environ.get(ENV, "1").strip() == "0":
+        return f"{ENV}=0"
+    given = [name for name, value in kept.items() if value is not None]
+    if given:
+        return f"the render has {', '.join(given)}"
+    if progress and shape.passes > 1:
+        return "a progress bar follows its passes"
+    integrator = sampling_integrator(scene)
+    if type(integrator).__module__.startswith("mcrt."):
+        return f"mcrt's {type(integrator).__name__} works on the host"
+    return None
+
+
+def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, sensor: int,
+           channels: int) -> Replayed | None:
+    """The render of ``scene`` with ``sampler`` (sample count set, film prepared)
+    in passes of ``shape``, recorded or replayed; None if it cannot be (then
+    render it unfrozen)."""
+    key = _key(scene, sampler, shape, sensor, channels)
+    if key is None or key in _FAILED:
+        return None
+    entry = _ENTRIES.get(key)
+    if entry is None:
+        entry = _ENTRIES[key] = (scene, dr.freeze(_body, warn_after=4))
+        while len(_ENTRIES) > LIMIT:
+            _ENTRIES.popitem(last=False)
+    _ENTRIES.move_to_end(key)
+    _NOW.sampler, _NOW.shape, _NOW.sensor, _NOW.channels = sampler, shape, sensor, channels
+    start = time.perf_counter()
+    try:
+        tables = getattr(sampler, "frozen_inputs", tuple)()
+        image, nonfinite, sums = entry[1](scene, dr.opaque(mi.UInt32, seed), tables)
+        dr.eval(image, nonfinite, sums)
+        dr.sync_thread()
+    except RuntimeError as error:  # what cannot be recorded renders unfrozen, from now on
+        _ENTRIES.pop(key, None)
+        _FAILED[key] = " ".join(str(_root(error)).split())[:300]
+        note(f"{sampler_name(sampler)} cannot be replayed ({_FAILED[key]})")
+        return None
+    finally:
+        _NOW.sampler = None
+    return Replayed(image, nonfinite, list(sums), time.perf_counter() - start)
+
+
+def note(why: str) -> None:
+    """Say once per process (at debug level) why renders of a kind run unfrozen."""
+    if why not in _NOTED:
+        _NOTED.add(why)
+        log.debug("rendering without replay: %s", why)
+
+
+def clear() -> None:
+    """Drop every recording (and the scenes they keep alive)."""
+    _ENTRIES.clear()
+    _FAILED.clear()
+
+
+def recordings() -> int:
+    """How many times the frozen renders of this process were recorded (traced)."""
+    return sum(int(getattr(fn, "n_recordings", 0)) for _, fn in _ENTRIES.values())
+
+
+def _key(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, sensor: int,
+         channels: int) -> tuple | None:
+    name = sampler_name(sampler)
+    identity = getattr(sampler, "_base_seed", None)
+    if identity is None:  # Mitsuba's: what a clone of it draws (some hide their base seed)
+        probe, fixed = sampler.clone(), 0x5EED
+        probe.seed(fixed, 4)  # type: ignore[arg-type]  # the stub wants a UInt array
+        identity = tuple(float(v) for v in probe.next_1d()) + (str(sampler),)
+    params = tuple(sorted((k, repr(v)) for k, v in sampler_params(sampler).items()))
+    return (mi.variant(), id(scene), sensor, name, params, identity, sampler.sample_count(),
+            sampler_fingerprint(name, sampler_params(sampler)), shape, channels)
+
+
+def _root(error: BaseException) -> BaseException:
+    while error.__cause__ is not None:
+        error = error.__cause__
+    return error
+
+
+__all__ = ["ENV", "LIMIT", "Replayed", "clear", "note", "recordings", "render", "why_not"]
