@@ -126,7 +126,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     _NOW.sampler, _NOW.shape, _NOW.sensor, _NOW.channels = sampler, shape, sensor, channels
     start = time.perf_counter()
     try:
-        tables = getattr(sampler, "frozen_inputs", tuple)()
+        tables: tuple = getattr(sampler, "frozen_inputs", tuple)()
         image, nonfinite, sums = entry[1](scene, dr.opaque(mi.UInt32, seed), tables)
         dr.eval(image, nonfinite, sums)
         dr.sync_thread()
