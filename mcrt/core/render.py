@@ -237,6 +237,11 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     them, wherever it runs),
     the passes are the tasks of a job run by ``executor`` (a Dask cluster, say)
     and their sums are added here in pass order: the same bits as in-process.
+
+    A render without checkpoints, sub-frames, tasks or a progress bar over several
+    passes is recorded the first time its (scene, sampler, pass shape) is rendered
+    and replayed afterwards with each new seed (:mod:`mcrt.core.replay`): the same
+    bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
     """
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
