@@ -33,13 +33,14 @@ mi.set_variant("llvm_ad_rgb")
 
 import mcrt  # noqa: E402,F401  (registers the samplers)
 from mcrt.analysis.aliasing import low_band_ratio  # noqa: E402
+from mcrt.core.colour import LUMINANCE_WEIGHTS  # noqa: E402
 from mcrt.core.render import render_film  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
 from mcrt.samplers.points import point_sets  # noqa: E402
 
 WIDTH = 64
 SAMPLERS = (("zsobol", {"width": WIDTH}), ("sobol", {}), ("independent", {}))
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+LUMINANCE = np.array(LUMINANCE_WEIGHTS)
 
 
 def bump(points: np.ndarray) -> np.ndarray:

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Quick-start step 2: set everything up (see scripts/setup.sh), lint (ruff), type-check (mypy,
-# configured in pyproject.toml), then run the test suite,
+# configured in pyproject.toml), check the layers (lint-imports, contracts in pyproject.toml),
+# then run the test suite,
 #   python -m pytest -q [extra args...]      e.g. bash scripts/test.sh -m "not slow" -x
-# A lint or type error fails the run before any test starts.
+# A lint, type or layer error fails the run before any test starts.
 # CI runs exactly this script (.ci/run).
 set -euo pipefail
 
@@ -21,6 +22,9 @@ log "running: ruff check mcrt tests benchmarks scripts"
     || { err "ruff found problems (see above; many are fixed by: .venv/bin/ruff check --fix)"; exit 1; }
 log "running: mypy (files and settings in pyproject.toml)"
 "$MCRT_VENV/bin/mypy" || { err "mypy found type errors (see above)"; exit 1; }
+log "running: lint-imports (layer contracts in pyproject.toml, docs/architecture.md)"
+"$MCRT_VENV/bin/lint-imports" \
+    || { err "an import breaks a layer contract (see above and docs/architecture.md)"; exit 1; }
 
 log "running: python -m pytest -q $*"
 exec "$MCRT_VENV/bin/python" -m pytest -q "$@"

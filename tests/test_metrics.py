@@ -9,6 +9,7 @@ import pytest
 
 from mcrt.analysis.convergence import efficiency, fit_loglog
 from mcrt.analysis.metrics import (
+    LUMINANCE_WEIGHTS,
     REL_MSE_EPSILON,
     bias,
     delta_e_2000,
@@ -74,8 +75,9 @@ def test_luminance_and_error_map():
     rgb = np.zeros((1, 2, 3))
     rgb[0, 0] = (1.0, 0.0, 0.0)
     rgb[0, 1] = (1.0, 1.0, 1.0)
-    np.testing.assert_allclose(luminance(rgb), [[0.2126, 1.0]])
-    np.testing.assert_allclose(error_map(rgb, np.zeros_like(rgb)), [[0.2126, 1.0]])
+    red = LUMINANCE_WEIGHTS[0]  # 0.212671, Mitsuba's Y row (Rec. 709: 0.2126)
+    np.testing.assert_allclose(luminance(rgb), [[red, 1.0]])
+    np.testing.assert_allclose(error_map(rgb, np.zeros_like(rgb)), [[red, 1.0]])
     assert luminance(np.ones((2, 2))).shape == (2, 2)
 
 

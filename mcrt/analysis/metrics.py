@@ -44,11 +44,10 @@ from statistics import NormalDist
 
 import numpy as np
 
+from ..core.colour import LUMINANCE_WEIGHTS
+
 #: Default epsilon of :func:`rel_mse`: keeps dark pixels from dominating.
 REL_MSE_EPSILON = 1e-2
-
-#: Rec. 709 / sRGB luminance weights of linear R, G, B.
-LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 
 
 def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,7 +90,8 @@ def mse_excess(image: np.ndarray, reference: np.ndarray,
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 709 luminance ``Y`` of linear RGB ``(..., 3)`` (float64); a 2D array
+    """Luminance ``Y`` of linear RGB ``(..., 3)`` (float64; the weights
+    :data:`~mcrt.core.colour.LUMINANCE_WEIGHTS`, the sRGB -> XYZ ``Y`` row); a 2D array
     or a single channel is returned as float64 unchanged."""
     a = np.asarray(rgb, dtype=np.float64)
     if a.ndim == 2:

@@ -81,7 +81,7 @@ from ..core.trace import film_grid_size
 from ..errors import McrtError, SamplerError
 from ..render.loaded import planned_scene, remember_planned
 from ..render.plan import plan_scene
-from ..samplers._hash import hash_keys_int
+from ..samplers.kit import hash_keys_int
 from .pass_plan import DEFAULT_PASS_SPP, LANE_BUDGET, PassPlan, plan_passes
 from .reference_cache import (
     CACHE_FORMAT,

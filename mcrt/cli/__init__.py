@@ -44,7 +44,7 @@ COMMANDS: dict[str, str] = {
 
 #: Subcommand -> what it does (``mcrt --help``, the subcommand's own parser, README).
 SUMMARIES: dict[str, str] = {
-    "render": "render a scene with a chosen sampler",
+    "render": "render a scene with a chosen sampler, or any mcrt EXR again from its header",
     "demo": "render the shipped scenes with each sampler and compare",
     "pattern": "analyse a sampler's point sets: spectrum, anisotropy, discrepancy",
     "integrate": "Monte-Carlo integration bench: error vs N per sampler",

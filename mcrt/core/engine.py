@@ -38,9 +38,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
-from ..samplers._hash import hash_keys, hash_keys_int
-from ..samplers._stratified import split_sample
 from ..samplers.base import is_mcrt_sampler
+from ..samplers.kit import hash_keys, hash_keys_int, split_sample
 from .memory import BYTES_PER_LANE, KERNEL_BYTES, lane_budget
 from .progress import Progress
 from .sampling import bind_film_width, sampler_name

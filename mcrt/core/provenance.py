@@ -38,7 +38,7 @@ def software() -> dict[str, str]:
     import drjit as dr
     import mitsuba as mi
 
-    from .. import __version__
+    from .._version import __version__
 
     return {"variant": str(mi.variant() or ""), "mcrt_version": __version__,
             "mitsuba_version": str(mi.__version__),

@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import McrtError
 from . import replay
 from .accumulators import FilmAccumulator, MomentsAccumulator, release_cached_memory
+from .colour import SRGB_TO_XYZ, XYZ_TO_SRGB
 from .engine import (
     MAX_LANES_PER_PASS,
     Accumulator,
@@ -100,11 +101,10 @@ class FilmRender:
         return linear_srgb(self.image, self.channels)
 
 
-@functools.cache
 def srgb_to_xyz_matrix() -> np.ndarray:
-    """Mitsuba's linear sRGB -> CIE XYZ matrix (``mi.srgb_to_xyz``), float64."""
-    unit = mi.Color3f(mi.Float(1, 0, 0), mi.Float(0, 1, 0), mi.Float(0, 0, 1))
-    return np.array(mi.srgb_to_xyz(unit), dtype=np.float64)  # [row, column]
+    """Mitsuba's linear sRGB -> CIE XYZ matrix (``mi.srgb_to_xyz``), float64: a
+    copy of :data:`mcrt.core.colour.SRGB_TO_XYZ`."""
+    return SRGB_TO_XYZ.copy()  # [row, column]
 
 
 def linear_srgb(image: np.ndarray, channels: list[str]) -> np.ndarray:
@@ -115,8 +115,7 @@ def linear_srgb(image: np.ndarray, channels: list[str]) -> np.ndarray:
     if head == ["R", "G", "B"]:
         return image[..., :3]
     if head == ["X", "Y", "Z"]:
-        inverse = np.linalg.inv(srgb_to_xyz_matrix())
-        return (image[..., :3].astype(np.float64) @ inverse.T).astype(image.dtype)
+        return (image[..., :3].astype(np.float64) @ XYZ_TO_SRGB.T).astype(image.dtype)
     if channels[:1] == ["Y"]:
         return np.repeat(image[..., :1], 3, axis=-1)
     raise McrtError(f"cannot show a film with channels {', '.join(channels)} as RGB")
@@ -137,9 +136,9 @@ def in_film_format(film: mi.Film, image: np.ndarray, alpha: bool) -> tuple[np.nd
     names = film_base_channels(film) or ["R", "G", "B", "A"]
     rgb = image[..., :3].astype(np.float64)
     if names[0] == "X":
-        rgb = rgb @ srgb_to_xyz_matrix().T
+        rgb = rgb @ SRGB_TO_XYZ.T
     elif names[0] == "Y":
-        rgb = rgb @ srgb_to_xyz_matrix()[1][:, None]
+        rgb = rgb @ SRGB_TO_XYZ[1][:, None]
     out = rgb.astype(image.dtype)
     if alpha:
         out = np.concatenate([out, image[..., 3:4]], axis=-1)

@@ -1,6 +1,6 @@
 """Image input/output: float32 multi-layer EXR, sRGB PNG, contact sheets.
 
-All writers are atomic (see :mod:`mcrt.io.atomic`) and report unwritable or
+All writers are atomic (see :mod:`mcrt.core.atomic`) and report unwritable or
 unreadable paths as :class:`ImageIOError`, a :class:`~mcrt.errors.McrtError`.
 """
 

@@ -94,7 +94,7 @@ def _layer_channels(name: str, array) -> list[tuple[str, np.ndarray]]:
         raise ValueError(f"EXR layer {name!r} must hold real numbers, got dtype {a.dtype}")
     prefix = "" if name == MAIN_LAYER else name + "."
     return [(prefix + s, np.ascontiguousarray(p, dtype=np.float32))
-            for s, p in zip(suffixes, planes)]
+            for s, p in zip(suffixes, planes, strict=True)]
 
 
 def _raw_channel(name: str, plane) -> np.ndarray:
@@ -153,7 +153,7 @@ def write_exr(path: str | os.PathLike, layers: Mapping[str, np.ndarray],
     before the layers; a name given twice is an error.
 
     Raises :class:`ValueError` / :class:`TypeError` for malformed layers or
-    metadata (programming errors) and :class:`~mcrt.io.atomic.ImageIOError`
+    metadata (programming errors) and :class:`~mcrt.core.atomic.ImageIOError`
     (an :class:`~mcrt.errors.McrtError`) when the file cannot be written (missing
     directory, permission denied, disk full, ...). On any failure a previous
     file at ``path`` is left intact and no temporary file remains.
@@ -217,7 +217,7 @@ def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
     channels' stored dtype (float32 for files from :func:`write_exr`) with the
     shapes described in the module docstring; ``metadata`` holds the
     non-structural header attributes. Raises
-    :class:`~mcrt.io.atomic.ImageIOError` when the file is missing, unreadable or
+    :class:`~mcrt.core.atomic.ImageIOError` when the file is missing, unreadable or
     not an OpenEXR file.
     """
     import OpenEXR

@@ -200,7 +200,7 @@ def _save_png(path, image) -> None:
 def write_png(path: str | os.PathLike, rgb_linear, exposure: float = 0.0) -> None:
     """Write linear RGB as an 8-bit sRGB PNG (display rule above), atomically.
 
-    Raises :class:`~mcrt.io.atomic.ImageIOError` (an
+    Raises :class:`~mcrt.core.atomic.ImageIOError` (an
     :class:`~mcrt.errors.McrtError`) when ``path`` cannot be written; a previous
     file at ``path`` is then left intact.
     """

@@ -40,7 +40,7 @@ import mitsuba as mi
 
 from ..core.trace import film_grid_size, integrator_sample
 from ..errors import McrtError
-from ..samplers._hash import hash_keys_int
+from ..samplers.kit import hash_keys_int
 
 #: Representative choices (``representative`` parameter).
 REPRESENTATIVES = ("centre", "first")

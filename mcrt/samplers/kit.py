@@ -5,9 +5,12 @@ functions of a per-(seed, pixel, dimension) ``key`` and a per-lane ``sample``
 index: ``_sample_1d(key, sample, active) -> mi.Float`` and
 ``_sample_2d(key, sample, active) -> mi.Point2f``. The functions here are the
 ones mcrt's own samplers are made of; they are stable API (the modules they
-live in are not).
+live in are not), and the rest of mcrt (the pass engine's seed keys, the render
+features) imports them from here too.
 
 =====================  =========================================================
+``hash_keys(*k)``      hash an ordered tuple of 32-bit keys (starts a chain)
+``hash_keys_int(*k)``  :func:`hash_keys` on Python ints (keys known at trace time)
 ``hash_extend(h, k)``  continue a 32-bit hash chain with more keys
 ``mix32(x)``           bijective 32-bit avalanche mix (lowbias32)
 ``unit_float(h)``      a uint32 hash to a float32 in [0, 1)
@@ -34,8 +37,8 @@ noise) and whose 1D dimensions are stratified::
 
 from __future__ import annotations
 
-from ._hash import hash_extend, mix32, permute, unit_float
+from ._hash import hash_extend, hash_keys, hash_keys_int, mix32, permute, unit_float
 from ._stratified import epoch_key, split_sample, stratified_1d, stratified_2d
 
-__all__ = ["epoch_key", "hash_extend", "mix32", "permute", "split_sample", "stratified_1d",
-           "stratified_2d", "unit_float"]
+__all__ = ["epoch_key", "hash_extend", "hash_keys", "hash_keys_int", "mix32", "permute",
+           "split_sample", "stratified_1d", "stratified_2d", "unit_float"]

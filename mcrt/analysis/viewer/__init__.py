@@ -15,7 +15,7 @@ values of those files: exposure and tone mapping (sRGB) are applied in the
 browser, the readout prints the values, and the error views are computed there
 from them:
 
-* signed: ``Y(image) - Y(reference)`` (Rec. 709 luminance), blue below, red above;
+* signed: ``Y(image) - Y(reference)`` (luminance, :mod:`mcrt.core.colour`), blue below, red above;
 * absolute: ``|Y(image) - Y(reference)|``;
 * relative: ``|Y(image) - Y(reference)| / sqrt(Y(reference)^2 + 0.01)`` (relMSE's
   weighting, :data:`~mcrt.analysis.metrics.REL_MSE_EPSILON`);
@@ -38,6 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...core.colour import LUMINANCE_WEIGHTS
+
 if TYPE_CHECKING:
     from ..study import StudyResult
 
@@ -53,9 +55,11 @@ SCRIPTS = ("viewer.js", "loading.js", "pixels.js", "tables.js")
 
 def viewer_assets() -> tuple[str, str]:
     """The viewer's CSS and JavaScript (package data next to this module; the
-    scripts of :data:`SCRIPTS` in one strict-mode function)."""
+    scripts of :data:`SCRIPTS` in one strict-mode function, after ``LUM``, the
+    luminance weights :data:`~mcrt.core.colour.LUMINANCE_WEIGHTS`)."""
     here = resources.files(__package__)
-    parts = [(here / name).read_text(encoding="utf-8") for name in SCRIPTS]
+    parts = [f"var LUM = {json.dumps(list(LUMINANCE_WEIGHTS))};\n"]
+    parts += [(here / name).read_text(encoding="utf-8") for name in SCRIPTS]
     script = '(function () {\n"use strict";\n' + "\n".join(parts) + "})();\n"
     return (here / "viewer.css").read_text(encoding="utf-8"), script
 

@@ -47,6 +47,7 @@ from urllib.parse import quote
 import numpy as np
 
 from ...core.atomic import atomic_path
+from ...core.colour import LUMINANCE_WEIGHTS
 from ..metrics import REL_MSE_EPSILON, error_map
 from .files import Links, safe_name
 
@@ -63,8 +64,8 @@ KINDS = ("first", "mean", "variance", "flip")
 SCALED_VIEWS = ("signed", "abs", "rel", "variance")
 #: Pixels sampled per image for a colour scale (the viewer's former rule).
 SCALE_SAMPLES = 20000
-#: Rec. 709 luminance weights, as the viewer applies them.
-LUM = (0.2126, 0.7152, 0.0722)
+#: Luminance weights, as the viewer applies them (the page gets them from here).
+LUM = LUMINANCE_WEIGHTS
 #: zlib level of the data files (6: the default; 9 saves under 1% on noisy images).
 LEVEL = 6
 
@@ -237,7 +238,7 @@ def _scene_data(result: StudyResult, scene: str, directory: Path,
         return entry, scale_samples(shown, ref_shown)
 
     with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
-        done = dict(zip(keys, pool.map(one, keys)))
+        done = dict(zip(keys, pool.map(one, keys), strict=True))
     samples: dict[int, list[dict[str, np.ndarray]]] = {spp: [] for spp in config.spp}
     hard = []
     for key, (_, found) in done.items():

@@ -7,7 +7,8 @@
  * resolution into a canvas and enlarged by CSS at an integer zoom with nearest-neighbour
  * sampling (image-rendering: pixelated): never resampled (pixels.js). */
 
-var LUM = [0.2126, 0.7152, 0.0722];
+// LUM, the luminance weights of linear R, G, B, is defined by the page: viewer_assets writes
+// mcrt.core.colour.LUMINANCE_WEIGHTS before these scripts.
 var REL_EPS = 0.01;
 var VIEWS = [
   ["image", "i", "image"], ["signed", "s", "signed error"], ["abs", "a", "absolute error"],

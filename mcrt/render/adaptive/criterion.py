@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...analysis.metrics import LUMINANCE_WEIGHTS
+from ...core.colour import LUMINANCE_WEIGHTS
 from ...core.stats import PixelStats
 from .settings import AdaptiveSettings
 
-#: Linear-sRGB (Rec. 709) luminance weights of R, G, B (the analysis layer's).
+#: Luminance weights of linear sRGB R, G, B (:data:`mcrt.core.colour.LUMINANCE_WEIGHTS`).
 LUMINANCE = np.array(LUMINANCE_WEIGHTS)
 
 #: Quantile above which pixel luminances are clipped before averaging ``Ybar``.

@@ -22,8 +22,8 @@ from ...core.stats import PixelStats
 from ...core.trace import CameraSamples, film_grid_size, pixel_of_index
 from ...core.upload import to_device
 from ...errors import McrtError
-from ...samplers._hash import hash_keys_int
 from ...samplers.base import is_mcrt_sampler
+from ...samplers.kit import hash_keys_int
 from .criterion import dilate, error_ratio
 from .ladder import batch_ladder, budget_batches, pass_batch_size
 from .reconstruct import reconstruct, subpixel_filter
