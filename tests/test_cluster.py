@@ -336,13 +336,20 @@ def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
     _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
 
 
-@pytest.mark.parametrize("sampler", ["sobol", "independent"])
+@pytest.mark.parametrize("sampler", ["sobol", "independent", "scene's seeded jittered"])
 def test_render_passes_on_a_cluster_write_the_same_exr(tmp_path, cache, sampler):
     """`mcrt render --cluster local:2`: each pass is a task whose sums the client
     adds in pass order: the same EXR (layers and header) as in one process. Mitsuba's
     `independent` is seeded afresh by every pass, so a worker starts any pass too
-    (the default sampler of most scenes; it was once refused)."""
+    (the default sampler of most scenes; it was once refused). A scene's own
+    sampler with an authored seed property renders with it on the workers too."""
     common = [str(CORNELL), "-D", "res=128", "--spp", "256", "--sampler", sampler]
+    if sampler.startswith("scene"):
+        seeded = tmp_path / "seeded.xml"
+        seeded.write_text(CORNELL.read_text().replace(
+            '<integer name="sample_count" value="$spp"/>',
+            '<integer name="sample_count" value="$spp"/><integer name="seed" value="5"/>'))
+        common = [str(seeded), "-D", "res=128", "--spp", "256"]
     here = _mcrt("-q", "render", *common, "-o", str(tmp_path / "here"))
     there = _mcrt("-q", "render", *common, "--cluster", "local:2", "-o", str(tmp_path / "there"))
     assert here.returncode == 0, here.stderr

@@ -25,6 +25,7 @@ from ..core.job import CheckpointStore, Interrupted, content_key
 from ..core.memory import film_bytes, require_memory
 from ..core.render import FilmRender, render_film
 from ..core.sampling import (
+    base_seed,
     check_sampler_name,
     make_sampler,
     quiet_sampler_warnings,
@@ -233,7 +234,7 @@ def _pass_tasks(args: argparse.Namespace, planned, params: dict[str, str],
     remember_planned(source, params, planned, overrides, wrap)  # for in-process tasks too
     task = FilmPassTask(tuple(sorted(params.items())), tuple(sorted(overrides.items())), wrap,
                         name, tuple(sorted(sampler_params_of(sampler).items())), spp,
-                        args.seed)
+                        args.seed, base_seed(sampler))
     return {"pass_task": functools.partial(film_pass, task), "shared": {"scene": source}}
 
 

@@ -89,17 +89,30 @@ def did_you_mean(name: str, choices: Iterable[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-def make_sampler(name: str, spp: int, **params: Any) -> mi.Sampler:
+def make_sampler(name: str, spp: int, base_seed: int = 0, **params: Any) -> mi.Sampler:
     """Instantiate sampler plugin ``name`` with ``spp`` samples per pixel and
-    plugin ``params`` (never a seed: the render gives it, see the module doc)."""
+    plugin ``params`` (never a seed: the render gives it, see the module doc;
+    ``base_seed`` is the plugin's own ``seed`` property, which a scene may author:
+    :func:`base_seed` of a sampler object makes the same sampler again)."""
     check_sampler_name(name)
     if "seed" in params:
         raise SamplerError(f"{name}: the seed is a setting of the render (--seed), not of the "
                            f"sampler")
+    own = {"seed": int(base_seed)} if base_seed else {}
     try:
-        return mi.load_dict({"type": name, "sample_count": int(spp), **params})
+        return mi.load_dict({"type": name, "sample_count": int(spp), **own, **params})
     except Exception as error:
         raise SamplerError(f"cannot create sampler {name!r}: {mitsuba_message(error)}") from None
+
+
+def base_seed(sampler: mi.Sampler) -> int:
+    """The ``seed`` property a sampler object was made with (mcrt's samplers, and
+    Mitsuba's that print it); 0 when it cannot be read."""
+    own = getattr(sampler, "_base_seed", None)
+    if own is not None:
+        return int(own)
+    found = re.search(r"base_seed = (\d+)", str(sampler))
+    return int(found.group(1)) if found else 0
 
 
 def bind_film_width(sampler: mi.Sampler, width: int) -> None:

@@ -76,6 +76,7 @@ class FilmPassTask:
     sampler_params: tuple[tuple[str, Any], ...]
     spp: int
     seed: int
+    base_seed: int = 0  # the sampler's own seed property (a scene may author one)
 
 
 def film_pass(task: FilmPassTask, index: int, *, passes: int,
@@ -85,7 +86,8 @@ def film_pass(task: FilmPassTask, index: int, *, passes: int,
     as ``mcrt render`` plans it (its motion sub-frames too)."""
     planned = planned_scene(scene, dict(task.params), dict(task.overrides), task.wrap)
     with quiet_sampler_warnings():  # (the client has said it once)
-        sampler = make_sampler(task.sampler, task.spp, **dict(task.sampler_params))
+        sampler = make_sampler(task.sampler, task.spp, task.base_seed,
+                               **dict(task.sampler_params))
     _, on_pass = planned.schedule(sampler, task.spp, task.seed)
     return render_film_pass(planned.scene, sampler, index, passes, seed=task.seed,
                             on_pass=on_pass)
