@@ -9,6 +9,8 @@ back to rendering unfrozen, which every case names.
 
 from __future__ import annotations
 
+import logging
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -104,6 +106,7 @@ def test_what_cannot_be_replayed_renders_unfrozen(monkeypatch, caplog):
     host-side multisample integrator: no recording, the same bits, a debug note."""
     scene = small_cornell(16, box_filter=True)
     moves: list[int] = []
+    monkeypatch.setattr(logging.getLogger("mcrt"), "propagate", True)  # to caplog's handler
     with caplog.at_level("DEBUG", logger="mcrt"):
         _compare(monkeypatch, scene, "jittered", 4, on_pass=lambda i, n: moves.append(i),
                  passes=2)

@@ -19,7 +19,8 @@ render of each kind says why (a note on ``mcrt.render``):
 
 * renders that report or change something between passes: checkpoints, resumed
   renders, motion-blur sub-frames (the scene moves between passes), progress
-  bars over several passes, passes run as tasks elsewhere;
+  bars over several passes, passes run as tasks elsewhere; and renders of more
+  than :data:`MAX_PASSES` passes (long enough for tracing not to matter);
 * integrators written in Python by mcrt (``multisample`` counts its shading
   evaluations on the host);
 * whatever fails to record (e.g. a sampler that reads arrays on the host while
@@ -49,6 +50,10 @@ log = logging.getLogger("mcrt.render")
 
 #: The environment variable that switches replay off (``0``).
 ENV = "MCRT_REPLAY"
+
+#: Most passes a replayed render has: a render of more passes is long enough that
+#: tracing is a small part of it, and its recording would keep every pass's launches.
+MAX_PASSES = 16
 
 #: Recordings kept per process (least recently used dropped first); each holds its
 #: kernels and keeps its scene alive.
@@ -103,6 +108,8 @@ def why_not(scene: mi.Scene, shape: PassShape, progress: bool, **kept: Any) -> s
         return f"the render has {', '.join(given)}"
     if progress and shape.passes > 1:
         return "a progress bar follows its passes"
+    if shape.passes > MAX_PASSES:
+        return f"more than {MAX_PASSES} passes"
     integrator = sampling_integrator(scene)
     if type(integrator).__module__.startswith("mcrt."):
         return f"mcrt's {type(integrator).__name__} works on the host"
@@ -148,9 +155,11 @@ def note(why: str) -> None:
 
 
 def clear() -> None:
-    """Drop every recording (and the scenes they keep alive)."""
+    """Drop every recording (and the scenes they keep alive), and forget the
+    failures and notes."""
     _ENTRIES.clear()
     _FAILED.clear()
+    _NOTED.clear()
 
 
 def recordings() -> int:
@@ -177,4 +186,5 @@ def _root(error: BaseException) -> BaseException:
     return error
 
 
-__all__ = ["ENV", "LIMIT", "Replayed", "clear", "note", "recordings", "render", "why_not"]
+__all__ = ["ENV", "LIMIT", "MAX_PASSES", "Replayed", "clear", "note", "recordings", "render",
+           "why_not"]
