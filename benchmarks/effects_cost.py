@@ -122,7 +122,7 @@ def off_costs_nothing(args, tmp: Path) -> None:
                 return seconds
             return run
         times = interleaved({"A": runner("A", a), "B": runner("B", b)}, args.rounds)
-        ratio = statistics.median(x / y for x, y in zip(times["A"], times["B"]))
+        ratio = statistics.median(x / y for x, y in zip(times["A"], times["B"], strict=True))
         print(f"| {label} | {statistics.median(times['A']):.3f} | "
               f"{statistics.median(times['B']):.3f} | {ratio:.3f} | {passes['A']}, "
               f"{passes['B']} |")
@@ -192,8 +192,8 @@ def cost_table(args) -> None:
             for s in (spp // 4, spp):
                 image, _ = planned_render(path, params, overrides, spp=s, seed=1)
                 errors[s] = rel_mse(image.rgb, reference.rgb)
-            times = interleaved({"t": lambda seed, o=overrides: planned_render(
-                path, params, o, spp=spp, seed=seed)[0].seconds}, args.rounds)["t"]
+            times = interleaved({"t": lambda seed, p=path, q=params, o=overrides: planned_render(
+                p, q, o, spp=spp, seed=seed)[0].seconds}, args.rounds)["t"]
             slope = math.log(errors[spp // 4] / errors[spp]) / math.log(4)
             row[key] = (statistics.median(times), errors[spp], slope)
         (t_off, e_off, _), (t_on, e_on, b_on) = row["off"], row["on"]

@@ -89,8 +89,8 @@ def row(path: Path, kind: str, res: int, name: str, spp: int, rounds: int) -> No
 
     cases = (ours, theirs, split)
     samples = run_interleaved(cases, rounds, warmup=1, sync=dr.sync_thread)
-    wall = {fn: statistics.median(t.wall for t in v) for fn, v in zip(cases, samples)}
-    cpu = {fn: statistics.median(t.cpu for t in v) for fn, v in zip(cases, samples)}
+    wall = {fn: statistics.median(t.wall for t in v) for fn, v in zip(cases, samples, strict=True)}
+    cpu = {fn: statistics.median(t.cpu for t in v) for fn, v in zip(cases, samples, strict=True)}
     print(f"| {res}^2 {kind} | {name} | {wall[ours]:.3f} | {wall[theirs]:.3f} | "
           f"{wall[ours] / wall[theirs]:.3f} | {cpu[ours] / cpu[theirs]:.3f} | "
           f"{wall[split]:.3f} ({passes} x {group} spp) | {wall[split] / wall[theirs]:.3f} |",

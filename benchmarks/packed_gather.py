@@ -111,7 +111,7 @@ def main() -> int:
 
     samples = run_interleaved([case(read) for read in reads.values()], args.rounds, warmup=0,
                               sync=dr.sync_thread)  # the timing protocol (compiled above)
-    times = {name: [s.wall for s in series] for name, series in zip(reads, samples)}
+    times = {name: [s.wall for s in series] for name, series in zip(reads, samples, strict=True)}
     base = statistics.median(times["separate"])
     print(f"\nGather kernel, {args.res}^2 pixels x {args.spp} samples x 25 neighbours, "
           f"median of {args.rounds} rounds:\n")
@@ -133,7 +133,7 @@ def film_sums(columns: list[Any], res: int, spp: int, block: tuple[int, int]) ->
                        lambda w, stored: [mi.Float64(w), *(mi.Float64(v * w) for v in stored)])
     sums = [dr.zeros(mi.Float64, res * res) for _ in range(4)]
     for slot in slots:
-        for total, value in zip(sums, slot.values):
+        for total, value in zip(sums, slot.values, strict=True):
             dr.scatter_add(total, value, slot.index, slot.valid, mode=dr.ReduceMode.NoConflicts)
     dr.eval(sums)
     return sums
@@ -149,13 +149,13 @@ def blocks(columns: list[Any], args: argparse.Namespace) -> None:
     same = {}
     for shape in shapes:  # compile, and compare the bits
         got = [dr.ravel(s).numpy() for s in film_sums(columns, args.res, args.spp, shape)]
-        same[shape] = all((a == b).all() for a, b in zip(got, first))
+        same[shape] = all((a == b).all() for a, b in zip(got, first, strict=True))
     def sums(shape: tuple[int, ...]) -> Callable[[], None]:
         return lambda: film_sums(columns, args.res, args.spp, shape)
 
     samples = run_interleaved([sums(shape) for shape in shapes], args.rounds, warmup=0,
                               sync=dr.sync_thread)
-    times = {shape: [s.wall for s in series] for shape, series in zip(shapes, samples)}
+    times = {shape: [s.wall for s in series] for shape, series in zip(shapes, samples, strict=True)}
     base = statistics.median(times[shapes[0]])
     print(f"\nFilterReach (Gaussian film, 4 sums), {args.res}^2 pixels x {args.spp} samples, "
           f"by targets per lane, median of {args.rounds} rounds (mcrt: {BLOCK[0]}x{BLOCK[1]}):\n")

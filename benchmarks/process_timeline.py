@@ -106,7 +106,8 @@ def run_child(kind: str, args, out: Path) -> dict[str, float]:
     line = [x for x in done.stderr.splitlines() if x.startswith("MARKS ")][-1]
     marks = ast.literal_eval(line[len("MARKS "):])
     points = [spawned] + [marks[s] for s in STAGES[:-1]] + [ended]
-    return {stage: 1000.0 * (b - a) for stage, a, b in zip(STAGES, points, points[1:])}
+    return {stage: 1000.0 * (b - a)
+            for stage, a, b in zip(STAGES, points[:-1], points[1:], strict=True)}
 
 
 def main() -> int:

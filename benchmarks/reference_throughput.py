@@ -117,7 +117,7 @@ def main() -> None:
 
     def ratio(name: str, field: str) -> float:
         return statistics.median(a[field] / b[field]
-                                 for a, b in zip(times[name], times["mi.render"]))
+                                 for a, b in zip(times[name], times["mi.render"], strict=True))
 
     print(f"{'':10s} {'wall [s]':>9s} {'render [s]':>10s} {'cpu [s]':>8s} {'M samples/s':>12s} "
           f"{'end-to-end':>11s} {'render-only':>12s} {'cpu ratio':>10s}")

@@ -63,7 +63,7 @@ STARTUP_GOAL = 0.3    # seconds more than `import mitsuba` + set_variant
 
 MCRT_PLUGINS = ("uniform_grid", "jittered", "poisson_disk")
 
-PLAIN_SCRIPT = '''\
+PLAIN_SCRIPT = f'''\
 """Plain Mitsuba: load the scene, render it, write a float32 EXR."""
 import sys
 
@@ -73,14 +73,14 @@ import OpenEXR
 
 scene_path, res, spp, sampler, out = sys.argv[1:6]
 mi.set_variant("llvm_ad_rgb")
-if sampler in {plugins!r}:
+if sampler in {MCRT_PLUGINS!r}:
     import mcrt  # noqa: F401  (registers the sampler plugin)
 scene = mi.load_file(scene_path, res=res, spp=spp, sampler=sampler)
 image = np.asarray(mi.render(scene, spp=int(spp), seed=0), dtype=np.float32)
 channels = {{c: np.ascontiguousarray(image[:, :, i]) for i, c in enumerate("RGB")}}
 header = {{"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}}
 OpenEXR.File(header, channels).write(out)
-'''.format(plugins=MCRT_PLUGINS)
+'''
 
 
 @dataclass
@@ -219,7 +219,7 @@ def measure_startup(rounds: int, work: Path) -> dict[str, list[float]]:
 
 def ratio_row(label: str, unit: str, ours: list[float], theirs: list[float], goal: float,
               fmt: str = "{:.2f}") -> str:
-    ratios = [a / b for a, b in zip(ours, theirs)]
+    ratios = [a / b for a, b in zip(ours, theirs, strict=True)]
     ratio = statistics.median(ratios)
     q1, q3 = quartiles(ratios)
     return (f"| {label} | {fmt.format(statistics.median(ours))} {unit} "
@@ -284,7 +284,7 @@ def main() -> int:
     print("\n| A/A control: the plain script against itself | ratio (IQR) |")
     print("|---|---:|")
     for case, first, second in controls:
-        ratios = [a.wall / b.wall for a, b in zip(first.runs, second.runs)]
+        ratios = [a.wall / b.wall for a, b in zip(first.runs, second.runs, strict=True)]
         q1, q3 = quartiles(ratios)
         print(f"| {case.name}: time | {statistics.median(ratios):.3f} ({q1:.3f}-{q3:.3f}) |")
 
@@ -292,7 +292,7 @@ def main() -> int:
     print("\n| start-up | median | `import mitsuba` + set_variant | difference (IQR) | goal | |")
     print("|---|---:|---:|---:|---|---|")
     for name in ("import mcrt", "mcrt --help"):
-        diffs = [a - b for a, b in zip(startup[name], base)]
+        diffs = [a - b for a, b in zip(startup[name], base, strict=True)]
         diff = statistics.median(diffs)
         q1, q3 = quartiles(diffs)
         print(f"| `{name}` | {statistics.median(startup[name]):.3f} s "
@@ -300,7 +300,8 @@ def main() -> int:
               f"| <= +{STARTUP_GOAL:g} s | {verdict(diff <= STARTUP_GOAL)} |")
 
     print("\nCPU time (user + system, all threads; median ratio mcrt/plain): " + ", ".join(
-        f"{case.name} {statistics.median(a.cpu / b.cpu for a, b in zip(o.runs, t.runs)):.3f}"
+        f"{case.name} "
+        f"{statistics.median(a.cpu / b.cpu for a, b in zip(o.runs, t.runs, strict=True)):.3f}"
         for case, o, t, _ in renders))
     for problem in problems:
         print(f"warning: outputs differ, {problem}")

@@ -106,8 +106,8 @@ def main() -> None:
         samples = run_interleaved([renderer(scene, args.spp, seeds) for scene in scenes],
                                   args.rounds, warmup=1, sync=dr.sync_thread)
         walls = [[s.wall for s in case] for case in samples]
-        wall = [a / b for a, b in zip(*walls)]
-        cpu = [a.cpu / b.cpu for a, b in zip(*samples)]
+        wall = [a / b for a, b in zip(*walls, strict=True)]
+        cpu = [a.cpu / b.cpu for a, b in zip(*samples, strict=True)]
         q1, _, q3 = statistics.quantiles(wall, n=4)
         low, high = paired_time_ratio(*walls).interval()
         print(f"{label(ours):32s} {label(theirs):24s} {statistics.median(walls[0]):9.3f} "

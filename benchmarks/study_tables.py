@@ -84,11 +84,9 @@ def main() -> None:
         for n in counts:
             if n < args.min_spp:
                 continue
-
-            def efficiency(name: str, n: int = n) -> float:
-                return samplers[name][n]["efficiency"] or 0.0
-
-            mine, other = max(mine_names, key=efficiency), max(other_names, key=efficiency)
+            efficiency = {s: samplers[s][n]["efficiency"] or 0.0 for s in mine_names + other_names}
+            mine = max(mine_names, key=efficiency.__getitem__)
+            other = max(other_names, key=efficiency.__getitem__)
             a, b = samplers[mine][n], samplers[other][n]
             ratio = efficiency_ratio(
                 excess_mse([r["mse"] for r in a["per_seed"]], a["mse_floor"]),

@@ -53,7 +53,7 @@ def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResu
                      "mse": float(np.mean((r - ref) ** 2)), "rel_mse": 0.1, "delta_e": 1.0,
                      "mean_error": float(np.mean(r - ref)), "nonfinite": 0,
                      "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
-                    for s, r in zip(config.seeds, renders)]
+                    for s, r in zip(config.seeds, renders, strict=True)]
         stats = PixelStats.from_images(renders)
         cells.append(study._summarise_cell(scene, sampler, spp, per_seed, stats, ref, ref_var,
                                            floor, k))
@@ -109,7 +109,7 @@ class DyingFile:
 def dying_open(error: BaseException, only: str = ""):
     """An ``open`` whose files (those whose name contains ``only``) die mid-write."""
     def fake(file, mode="r", *args, **kwargs):
-        f = open(file, mode, *args, **kwargs)
+        f = open(file, mode, *args, **kwargs)  # noqa: SIM115 (returned to the caller, who closes it)
         if "w" in mode and only in os.path.basename(os.fspath(file)):
             return DyingFile(f, error)
         return f

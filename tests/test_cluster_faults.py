@@ -9,6 +9,7 @@ result arrived, a pass was folded), so they land in the middle of the work.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -68,10 +69,8 @@ def _worker_pids(executor: DaskExecutor) -> list[int]:
 
 def _kill(pids: list[int]) -> None:
     for pid in pids:
-        try:
+        with contextlib.suppress(ProcessLookupError):  # already gone
             os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:  # already gone
-            pass
 
 
 def _tiny_study(tmp_path: Path) -> Path:

@@ -262,7 +262,7 @@ def test_quick_study_writes_a_self_contained_report(quick):
 def test_csv_and_json_hold_the_same_cells(quick):
     _, data, rows = quick
     assert len(rows) == len(data["cells"]) == 2 * 5 * 3
-    for row, cell in zip(rows, data["cells"]):
+    for row, cell in zip(rows, data["cells"], strict=True):
         assert (row["scene"], row["sampler"], int(row["spp"])) == (cell["scene"], cell["sampler"],
                                                                    cell["spp"])
         for key in ("seconds", "mse", "mse_excess", "variance", "efficiency", "aliasing_ratio"):

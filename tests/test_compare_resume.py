@@ -164,15 +164,15 @@ def test_ctrl_c_writes_a_partial_report_and_the_same_command_resumes(study, tmp_
 
     # ... and its numbers are an uninterrupted run's, bit for bit (timings aside).
     assert len(data["cells"]) == len(baseline["cells"]) == 4
-    for got, want in zip(data["cells"], baseline["cells"]):
+    for got, want in zip(data["cells"], baseline["cells"], strict=True):
         assert (got["scene"], got["sampler"], got["spp_requested"]) == (
             want["scene"], want["sampler"], want["spp_requested"])
         for key in DETERMINISTIC:
             assert _same(got[key], want[key]), (got["sampler"], got["spp"], key)
-        for a, b in zip(got["per_seed"], want["per_seed"]):
+        for a, b in zip(got["per_seed"], want["per_seed"], strict=True):
             assert {k: v for k, v in a.items() if "seconds" not in k} == \
                    {k: v for k, v in b.items() if "seconds" not in k}
-    for got, want in zip(data["fits"], baseline["fits"]):
+    for got, want in zip(data["fits"], baseline["fits"], strict=True):
         assert got["slope_spp"] == want["slope_spp"] and got["points"] == want["points"]
 
     # 3. Once more: everything is saved, nothing is rendered, the report is rewritten.
@@ -332,7 +332,7 @@ def test_retime_times_the_saved_cells_again_and_keeps_their_errors(study, tmp_pa
     assert sorted(renders.cells()) == sorted((s, n) for _, s, n in CELLS)
     assert len(renders.calls) == 4 * (1 + 5) and scored == []
     again = _json(out)
-    for got, want in zip(again["cells"], first["cells"]):
+    for got, want in zip(again["cells"], first["cells"], strict=True):
         for key in DETERMINISTIC:
             assert _same(got[key], want[key]), key
         assert got["per_seed"] == want["per_seed"]  # the seeds' own records are kept

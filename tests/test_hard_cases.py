@@ -82,7 +82,7 @@ RANDOM_SAMPLERS = tuple(s for s in ALL_SAMPLERS if s != "uniform_grid")
 # --------------------------------------------------------------------------- helpers
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _planned(name: str, params: tuple[tuple[str, str], ...]) -> PlannedScene:
     return plan_scene(HARD / name, dict(params))
 
@@ -101,7 +101,7 @@ def render(name: str, sampler: str, spp: int, seed: int = 0, film: bool = False,
     return fn(scene.scene, smp, seed=seed, passes=passes, on_pass=on_pass)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _reference(name: str, spp: int, seed: int, params: tuple[tuple[str, str], ...]):
     return get_reference(HARD / name, dict(params), spp=spp, sampler="independent", seed=seed,
                          cache=False)

@@ -217,5 +217,5 @@ def test_time_samplers_times_every_point_by_the_protocol(monkeypatch):
     assert runs == [(2, 3), (2, 3)]  # per count: both samplers, 3 rounds
     points = [p for c in convs for p in c.points]
     assert all(p.seconds > 0 for p in points)
-    for p, old in zip(points, before):
+    for p, old in zip(points, before, strict=True):
         np.testing.assert_array_equal(p.estimates, old)

@@ -259,11 +259,10 @@ def test_atomic_path_success_and_permissions(tmp_path):
 def test_atomic_path_removes_temp_file_on_error(tmp_path):
     target = tmp_path / "out.bin"
     target.write_bytes(b"old")
-    with pytest.raises(ValueError):
-        with atomic_path(target) as tmp:
-            with open(tmp, "wb") as f:
-                f.write(b"partial")
-            raise ValueError("writer bug")
+    with pytest.raises(ValueError), atomic_path(target) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(b"partial")
+        raise ValueError("writer bug")
     assert target.read_bytes() == b"old"
     _only_file(tmp_path, "out.bin")
 

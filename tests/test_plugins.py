@@ -497,4 +497,4 @@ def test_a_changed_plugin_or_point_file_is_another_sampler_in_every_key(tmp_path
     plugins.load_plugin(plugin)
     np.save(points, jittered_sets(32, 16, np.random.default_rng(1)).astype(np.float32))
     after = keys()
-    assert all(a != b for a, b in zip(before, after)), (before, after)
+    assert all(a != b for a, b in zip(before, after, strict=True)), (before, after)

@@ -193,13 +193,13 @@ def test_close_pairs_matches_brute_force():
         pts = rng.random((3, n, 2))
         pts[0, 0], pts[0, 1] = (1e-4, 0.5), (1.0 - 1e-4, 0.5)  # across the edge
         i, j, d = close_pairs(pts, cutoff)
-        found = set(zip(i.tolist(), j.tolist()))
+        found = set(zip(i.tolist(), j.tolist(), strict=True))
         expected = set()
         for s in range(3):
             delta = pts[s, :, None, :] - pts[s, None, :, :]
             delta -= np.rint(delta)
             a, b = np.nonzero(np.triu((delta ** 2).sum(-1) < cutoff ** 2, 1))
-            expected |= set(zip((s * n + a).tolist(), (s * n + b).tolist()))
+            expected |= set(zip((s * n + a).tolist(), (s * n + b).tolist(), strict=True))
         assert found == expected and len(found) == len(i)  # each pair once, i < j
         flat = pts.reshape(-1, 2)
         np.testing.assert_allclose(d, flat[i] - flat[j] - np.rint(flat[i] - flat[j]))

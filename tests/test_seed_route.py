@@ -9,6 +9,8 @@ property. These tests render one cell through every route and compare bits.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import ROOT, run_cli
@@ -87,7 +89,7 @@ def test_the_adaptive_plugin_and_mcrt_render_agree(capsys, tmp_path):
     seed the same way and give the same image bits."""
     import mitsuba as mi
 
-    text = open(CORNELL).read()
+    text = Path(CORNELL).read_text()
     start = text.index('<integrator type="path">')
     end = text.index("</integrator>", start) + len("</integrator>")
     scene_path = tmp_path / "adaptive.xml"

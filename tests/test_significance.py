@@ -240,7 +240,7 @@ def test_log_interval_coverage_needs_student_t():
 
     def coverage(df: float) -> float:
         hits = 0
-        for c, se in zip(centers, ses):
+        for c, se in zip(centers, ses, strict=True):
             low, high = log_interval(float(c), float(se), df)
             hits += low <= truth <= high
         return hits / trials

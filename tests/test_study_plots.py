@@ -314,7 +314,7 @@ def test_time_plot_labels_spp_at_its_points(flagged):
     fig = study_figures.error_figure(flagged, "seconds")
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
-    for ax, scene in zip(fig.axes, flagged.scenes):
+    for ax, scene in zip(fig.axes, flagged.scenes, strict=True):
         shown = [t for t in _spp_labels(ax) if t.get_visible()]
         assert {t.get_text() for t in shown} == {"4", "16", "64", "256"}
         for t in shown:
@@ -348,20 +348,20 @@ def test_error_bars(flagged, axis):
     the 95% time interval on the time plot only; one container per sampler."""
     fig = study_figures.error_figure(flagged, axis)
     k = len(flagged.config.seeds)
-    for ax, scene in zip(fig.axes, flagged.scenes):
+    for ax, scene in zip(fig.axes, flagged.scenes, strict=True):
         containers = _errorbars(ax)
         assert len(containers) == len(SAMPLERS)
         for container in containers:
             assert container.has_yerr
             assert container.has_xerr == (axis == "seconds")
         checked = 0
-        for container, label in zip(containers, SAMPLERS):  # drawn in the study's order
+        for container, label in zip(containers, SAMPLERS, strict=True):  # drawn in the study's order
             cells = [c for c in flagged.cells if c["scene"] == scene and c["sampler"] == label]
             segments = [s for coll in container.lines[2] for s in coll.get_segments()]
             vertical = [s for s in segments if s[0][0] == s[1][0]]
             horizontal = [s for s in segments if s[0][1] == s[1][1] and s[0][0] != s[1][0]]
             assert len(vertical) == len(cells)
-            for ((x, y0), (_, y1)), cell in zip(vertical, cells):
+            for ((x, y0), (_, y1)), cell in zip(vertical, cells, strict=True):
                 se = cell["mse_sd"] / math.sqrt(k)
                 y = cell["mse_excess"]
                 assert x == pytest.approx(cell[axis])
@@ -369,7 +369,7 @@ def test_error_bars(flagged, axis):
                 checked += 1
             if axis == "seconds":
                 assert len(horizontal) == len(cells)
-                for ((x0, y), (x1, _)), cell in zip(horizontal, cells):
+                for ((x0, y), (x1, _)), cell in zip(horizontal, cells, strict=True):
                     assert y == pytest.approx(cell["mse_excess"])
                     assert (x0, x1) == pytest.approx((cell["seconds_low"], cell["seconds_high"]))
             else:
@@ -381,7 +381,7 @@ def test_summary_headline_is_error_against_spp(flagged):
     """The summary's first plots are excess MSE against spp (log axes), one per
     scene, over the error maps titled with their time in ms."""
     fig = study_figures.summary_figure(flagged)
-    for ax, scene in zip(fig.axes, flagged.scenes):
+    for ax, scene in zip(fig.axes, flagged.scenes, strict=False):  # the maps' axes follow
         assert ax.get_title() == scene
         assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
         assert "spp" in ax.get_xlabel()
@@ -398,7 +398,7 @@ def _hollow(ax) -> list[tuple[float, float]]:
     return [(float(x), float(y)) for line in ax.lines
             if line.get_marker() == "o" and line.get_linestyle() == "None"
             and to_rgba(line.get_markerfacecolor()) == to_rgba("white")
-            for x, y in zip(line.get_xdata(), line.get_ydata())]
+            for x, y in zip(line.get_xdata(), line.get_ydata(), strict=True)]
 
 
 def _rings(ax) -> list[tuple[float, float]]:
@@ -425,7 +425,7 @@ def test_marks_appear_only_for_flagged_cells(flagged, clean):
     rings exactly at the biased ones (both plots), each explained once in the
     legend, and neither mark nor entry without such a cell."""
     for axis in ("seconds", "spp"):
-        for ax, scene in zip(study_figures.error_figure(flagged, axis).axes, flagged.scenes):
+        for ax, scene in zip(study_figures.error_figure(flagged, axis).axes, flagged.scenes, strict=True):
             cell = {(c["sampler"], c["spp"]): c for c in flagged.cells if c["scene"] == scene}
             unstable = [(cell[(s, n)][axis], cell[(s, n)]["mse_excess"])
                         for sc, s, n in UNSTABLE if sc == scene]

@@ -178,7 +178,8 @@ def draw(sampler: mi.Sampler, calls: tuple[str, ...] = CALLS) -> list[np.ndarray
 def _same(name: str, a: list[np.ndarray], b: list[np.ndarray], what: str) -> CheckResult:
     diff = [f"call {i + 1} ({CALLS[i]}): {np.mean(x != y):.0%} of values differ"
             if x.shape == y.shape else f"call {i + 1}: {len(x)} vs {len(y)} lanes"
-            for i, (x, y) in enumerate(zip(a, b)) if not np.array_equal(x, y, equal_nan=True)]
+            for i, (x, y) in enumerate(zip(a, b, strict=True))
+            if not np.array_equal(x, y, equal_nan=True)]
     same = f"the same bits in {len(a)} calls ({', '.join(CALLS)}) of {len(a[0])} lanes"
     return CheckResult(name, not diff, f"{len(a) - len(diff)}/{len(a)} calls equal",
                        f"{what}: {'; '.join(diff) or same}")
@@ -227,7 +228,7 @@ def check_seeding(subject: Subject, budget: Budget, seed: int = 0) -> CheckResul
     n, pixels = subject.count(budget.contract_spp), budget.contract_pixels
     other = (seed + 1) % (1 << 32)
     a, b = (draw(subject.seeded(n, pixels, s)) for s in (seed, other))
-    kept = [float(np.mean(np.all(x == y, axis=1))) for x, y in zip(a, b)]
+    kept = [float(np.mean(np.all(x == y, axis=1))) for x, y in zip(a, b, strict=True)]
     stuck = [f"call {i + 1} ({CALLS[i]}) keeps {k:.0%} of its values"
              for i, k in enumerate(kept) if k > MAX_KEPT_SHARE]
     detail = "; ".join(stuck) or f"every call changes (<= {max(kept):.1%} of lanes keep a value)"

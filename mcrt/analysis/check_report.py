@@ -112,7 +112,8 @@ def _figures(out: Path, name: str, results: list[CheckResult]) -> list[str]:
     convergence = _data(results, "convergence")
     if convergence is not None:
         fig = plots.new_figure(4.0 * len(convergence), 3.8)
-        for ax, (integrand, conv) in zip(fig.subplots(1, len(convergence)), convergence.items()):
+        axes = fig.subplots(1, len(convergence))
+        for ax, (integrand, conv) in zip(axes, convergence.items(), strict=True):
             if not conv.points:
                 continue
             fit = conv.fit()

@@ -109,7 +109,7 @@ def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> Check
     limit = t_quantile(1 - ALPHA / (2 * len(p)), pixels - 1)
     detectable = (limit + t_quantile(POWER, pixels - 1)) * max(s for _, s, _ in tests.values())
     flagged = [f"{k}: bias {b:+.2%} (t = {t:+.3g}{', no sampling error' if s == 0 else ''})"
-               for (k, (b, s, t)), r in zip(tests.items(), rejected) if r]
+               for (k, (b, s, t)), r in zip(tests.items(), rejected, strict=True) if r]
     detail = ("biased: " + "; ".join(flagged) if flagged else
               "t " + ", ".join(f"{k} {t:+.1f}" for k, (_, _, t) in tests.items())
               + f"; |t| > {limit:.2f} fails, biases above {detectable:.1%} are found")
@@ -118,7 +118,7 @@ def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> Check
                    + ", ".join(f"{k} {b:+.2%}" for k, (b, _, _) in film.items()))
     worst = max(abs(t) for _, _, t in tests.values())
     values: dict[str, Any] = {k: {"relative_bias": b, "t": t, "p": q, "tested": True}
-                              for (k, (b, _, t)), q in zip(tests.items(), p)}
+                              for (k, (b, _, t)), q in zip(tests.items(), p, strict=True)}
     values.update({k: {"relative_bias": b, "t": t, "p": None, "tested": False}
                    for k, (b, _, t) in film.items()})
     return CheckResult("unbiasedness", not flagged, f"max |t| {worst:.3g}",

@@ -151,10 +151,7 @@ def mse_summary(errors: np.ndarray) -> MSESummary:
         raise ValueError("mse_summary needs at least two trials")
     sq = e * e
     mse = float(np.mean(sq))
-    if mse == 0.0:
-        se = 0.0
-    else:
-        se = float(np.std(sq, ddof=1) / math.sqrt(p) / mse)
+    se = 0.0 if mse == 0.0 else float(np.std(sq, ddof=1) / math.sqrt(p) / mse)
     return MSESummary(mse=mse, se_log=se, bias=float(np.mean(e)), trials=p)
 
 
@@ -372,5 +369,5 @@ def time_samplers(convergences: Iterable[Convergence], rounds: int = 3, seed: in
 
         samples = run_interleaved([case(p) for p in group], rounds, seed=seed + n_req,
                                   sync=dr.sync_thread)
-        for point, timing in zip(group, samples):
+        for point, timing in zip(group, samples, strict=True):
             point.seconds = summarise(timing).median

@@ -375,7 +375,8 @@ def _merge(merged: StatsRender | None, part: StatsRender) -> StatsRender:
         return part
     total, more = merged.stats, part.stats
     stats: PixelStats | FilteredStats
-    if isinstance(total, FilteredStats) and isinstance(more, FilteredStats):
+    # The same call twice: each branch narrows both types for the type checker.
+    if isinstance(total, FilteredStats) and isinstance(more, FilteredStats):  # noqa: SIM114
         stats = total.merge(more)
     elif isinstance(total, PixelStats) and isinstance(more, PixelStats):
         stats = total.merge(more)

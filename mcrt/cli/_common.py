@@ -159,7 +159,8 @@ def checkpoint_interval() -> float | None:
     try:
         value = float(text)
     except ValueError:
-        raise McrtError(f"MCRT_CHECKPOINT_SECONDS must be a number of seconds, got {text!r}")
+        raise McrtError(f"MCRT_CHECKPOINT_SECONDS must be a number of seconds, "
+                        f"got {text!r}") from None
     if not value >= 0:
         raise McrtError(f"MCRT_CHECKPOINT_SECONDS must be >= 0, got {text!r}")
     return value

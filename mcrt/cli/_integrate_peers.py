@@ -101,7 +101,7 @@ def run_funcsamp(args: argparse.Namespace, samplers: list[str], out: Path) -> li
           "(published: 100); columns N = " + ", ".join(map(str, counts)))
     print("published quarterdisk curves (errors_quarterdisk_<set>.data):")
     for name, values in peers.FUNCSAMP_PUBLISHED.items():
-        cells = " ".join(f"{v:9.2e}" for n, v in zip(peers.FUNCSAMP_COUNTS, values)
+        cells = " ".join(f"{v:9.2e}" for n, v in zip(peers.FUNCSAMP_COUNTS, values, strict=True)
                          if n in counts)
         print(f"  {name:18s} {cells}")
     errors: dict[str, dict[int, dict[str, float]]] = {}
@@ -120,19 +120,21 @@ def run_funcsamp(args: argparse.Namespace, samplers: list[str], out: Path) -> li
     for function in peers.FUNCSAMP:
         for name in samplers:
             curve = [errors[name].get(n, {}).get(function, math.nan) for n in counts]
-            ok = [(n, v) for n, v in zip(counts, curve) if v == v and v > 0]
+            ok = [(n, v) for n, v in zip(counts, curve, strict=True) if v == v and v > 0]
             slope = (np.polyfit(np.log([n for n, _ in ok]), np.log([v for _, v in ok]), 1)[0]
                      if len(ok) >= 2 else math.nan)
             pub = ""
             if function == "quarterdisk" and name in peers.FUNCSAMP_ROW_OF:
                 src = peers.FUNCSAMP_ROW_OF[name]
                 pub = " ".join(f"{v:.2e}" for n, v in zip(peers.FUNCSAMP_COUNTS,
-                                                          peers.FUNCSAMP_PUBLISHED[src])
+                                                          peers.FUNCSAMP_PUBLISHED[src],
+                                                          strict=True)
                                if n in counts) + f" ({src})"
             print(f"{function:16s} {name:13s} " + " ".join(f"{v:9.2e}" for v in curve)
                   + f"  {slope:+5.2f}  {pub}")
             rows.extend({"suite": "funcsamp2d", "family": function, "sampler": name, "n": n,
-                         "point_sets": trials, "mean_abs_error": v} for n, v in zip(counts, curve))
+                         "point_sets": trials, "mean_abs_error": v}
+                        for n, v in zip(counts, curve, strict=True))
     print("slope: of ln mean|error| against ln N (the RMSE rate; MSE slope = 2x)")
     return rows
 
@@ -144,11 +146,10 @@ def run(args: argparse.Namespace, samplers: list[str], out: Path) -> int:
         rows = run_funcsamp(args, samplers, out)
     stem = out / f"integrate_{args.integrand}"
     fields = sorted({key for row in rows for key in row})
-    with atomic_path(stem.with_suffix(".csv")) as tmp:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=fields or ["suite"])
-            writer.writeheader()
-            writer.writerows(rows)
+    with atomic_path(stem.with_suffix(".csv")) as tmp, open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields or ["suite"])
+        writer.writeheader()
+        writer.writerows(rows)
     with atomic_path(stem.with_suffix(".json")) as tmp:
         Path(tmp).write_text(json.dumps({"suite": args.integrand, "seed": args.seed,
                                          "rows": rows}, indent=2) + "\n")

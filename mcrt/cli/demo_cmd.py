@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         sheet = []
         results: dict[str, FilmRender] = {}
 
-        def case(name: str, scene=scene, results=results) -> Callable[[], None]:
+        def case(name: str, scene=scene, results=results, spp=spp) -> Callable[[], None]:
             def render() -> None:  # seed 1 every round: the same image, timed R times
                 results[name] = render_film(scene, make_sampler(name, spp), seed=1,
                                             progress=False)
@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         # interleaved rounds; every round renders the same image.
         samples = run_interleaved([case(name) for name in samplers], args.rounds,
                                   sync=dr.sync_thread)
-        for name, timing in zip(samplers, samples):
+        for name, timing in zip(samplers, samples, strict=True):
             result, summary = results[name], summarise(timing)
             error = rel_mse(result.rgb, reference.rgb)
             stem_out = out / f"{stem}_{name}"

@@ -173,11 +173,10 @@ def _write_outputs(out: Path, args, integrand, results) -> None:
                          "mse": p.summary.mse, "rmse": p.summary.rmse,
                          "se_log_mse": p.summary.se_log, "bias": p.summary.bias,
                          "seconds": p.seconds, "ns_per_sample": p.ns_per_sample})
-    with atomic_path(stem.with_suffix(".csv")) as tmp:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["sampler"])
-            writer.writeheader()
-            writer.writerows(rows)
+    with atomic_path(stem.with_suffix(".csv")) as tmp, open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["sampler"])
+        writer.writeheader()
+        writer.writerows(rows)
     slopes = {}
     for name, conv in results.items():
         fit = conv.fit()

@@ -199,7 +199,8 @@ def _write_outputs(out: Path, name: str, points: np.ndarray, report: patterns.Pa
     r = report.radial
     lines = ["radius,frequency,power,anisotropy_db,count"]
     lines += [f"{int(k)},{f:.6g},{p:.6g},{a:.6g},{int(c)}"
-              for k, f, p, a, c in zip(r.radius, r.frequency, r.power, r.anisotropy_db, r.count)]
+              for k, f, p, a, c in zip(r.radius, r.frequency, r.power, r.anisotropy_db, r.count,
+                                       strict=True)]
     with atomic_path(out / "radial.csv") as tmp:
         Path(tmp).write_text("\n".join(lines) + "\n")
     with atomic_path(out / "summary.json") as tmp:

@@ -126,7 +126,7 @@ class FilmAccumulator:
         # them), except the weight channel (the literal 1); then one kernel per
         # pass sums each pixel's samples in order.
         ones = [_is_one(v) for v in values]
-        stored = [v for v, one in zip(values, ones) if not one]
+        stored = [v for v, one in zip(values, ones, strict=True) if not one]
         dr.eval(stored)
 
         def own(lane: Any) -> list[Any]:  # the channels, non-finite samples zeroed; the flag
@@ -154,7 +154,7 @@ class FilmAccumulator:
         counts_at = lane_pixel if lane_pixel is not None else \
             dr.arange(mi.UInt32, dr.width(self.nonfinite))
         for slot in slots:
-            for s, t in zip(self.sums, slot.values):
+            for s, t in zip(self.sums, slot.values, strict=True):
                 dr.scatter_add(s, t, slot.index, slot.valid, mode=dr.ReduceMode.NoConflicts)
         dr.scatter_add(self.nonfinite, bad, counts_at, mode=dr.ReduceMode.NoConflicts)
         dr.eval(self.sums, self.nonfinite)
@@ -210,7 +210,7 @@ class FilmAccumulator:
         ones = [_is_one(v) for v in values]
         finite = _finite(values)
         position = mi.Point2f(samples.position)
-        columns: list[Any] = [dr.select(finite, v, 0.0) for v, one in zip(values, ones)
+        columns: list[Any] = [dr.select(finite, v, 0.0) for v, one in zip(values, ones, strict=True)
                               if not one]
         columns += [dr.select(finite, position.x, dr.nan), position.y]
         packed = Packed.of(columns)
@@ -260,7 +260,7 @@ class MomentsAccumulator:
         n = self.count + n_b
         safe = dr.maximum(n, 1.0)
         mean, m2 = [], []
-        for m_a, q_a, m_b, q_b in zip(self.mean, self.m2, mean_b, m2_b):
+        for m_a, q_a, m_b, q_b in zip(self.mean, self.m2, mean_b, m2_b, strict=True):
             delta = m_b - m_a
             mean.append(dr.select(n > 0, m_a + delta * (n_b / safe), 0.0))
             m2.append(q_a + q_b + delta * delta * (self.count * n_b / safe))
@@ -309,7 +309,7 @@ def block_moments(channels: list[mi.Float64], group: int
     means = [dr.block_sum(dr.select(finite, c, 0.0), group) / safe for c in channels]
     dr.eval(count, means)
     m2 = [dr.block_sum(dr.select(finite, dr.square(c - dr.repeat(m, group)), 0.0), group)
-          for c, m in zip(channels, means)]
+          for c, m in zip(channels, means, strict=True)]
     return count, means, m2, group - count
 
 
@@ -323,7 +323,7 @@ def sequential_block_sums(blocks: int, size: int,
 
     def body(k: Any, *sums: Any) -> tuple[Any, ...]:
         return (k + 1, *(total + mi.Float64(value)
-                         for total, value in zip(sums, contributions(first + k))))
+                         for total, value in zip(sums, contributions(first + k), strict=True)))
 
     state: Any = dr.while_loop((mi.UInt32(0), *[dr.zeros(mi.Float64, blocks)] * outputs),
                           lambda k, *sums: k < size, body)

@@ -17,6 +17,7 @@ one interruption type.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -274,17 +275,15 @@ class CheckpointStore:
                 continue
             header = _header(path)
             if header is not None and header.get("key") == self.key:
-                try:
+                with contextlib.suppress(OSError):  # load() still prefers the most advanced one
                     path.unlink()
-                except OSError:
-                    pass  # load() still prefers the most advanced one
 
     def discard(self) -> None:
         """Delete this job's checkpoint (never another job's)."""
         for path in self.paths:
-            if path not in self.foreign:
-                if special_kind(path) is None:  # a FIFO, a directory...: not ours to delete
-                    path.unlink(missing_ok=True)
+            # Not a FIFO, a directory...: those are not ours to delete.
+            if path not in self.foreign and special_kind(path) is None:
+                path.unlink(missing_ok=True)
 
     def save_periodic(self, checkpoint: Checkpoint) -> None:
         """A checkpoint taken while the job runs: after a failure (full disk, ...)

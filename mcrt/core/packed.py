@@ -45,7 +45,7 @@ def group_sizes(columns: int) -> list[int]:
 def _array_xf() -> Any:
     """The active variant's dynamic float vector (looked up on each use: the
     variant may change; Mitsuba's type stubs do not declare it callable)."""
-    return getattr(mi, "ArrayXf")
+    return mi.ArrayXf
 
 
 class Packed:

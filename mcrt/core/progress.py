@@ -39,7 +39,7 @@ class _Lines:
         share = self.n / self.total if self.total else 1.0
         done = self.n - self.initial
         left = (f", about {_duration(elapsed * (self.total - self.n) / done)} left"
-                if 0 < done and self.n < self.total else "")
+                if done > 0 and self.n < self.total else "")
         extra = f" [{self.postfix}]" if self.postfix else ""
         units = self.unit + ("es" if self.unit.endswith("s") else "s")
         print(f"{self.desc}: {self.n}/{self.total} {units} ({100 * share:.0f}%), "

@@ -92,12 +92,12 @@ class FilterReach:
                 inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
                 near = [s for s, (i, j) in enumerate(slots)
                         if abs(sx - i) <= r and abs(sy - j) <= r]
-                sources.append((sx, sy, inside,
+                sources.append((inside,
                                 mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group, near))
 
         def body(k: Any, *totals: Any) -> tuple[Any, ...]:
             out = list(totals)
-            for sx, sy, inside, base, near in sources:
+            for inside, base, near in sources:
                 *values, x, y = packed.gather(base + k, inside)
                 use = inside & ~dr.isnan(x)
                 fx = {i: self.rfilter.eval(centre.x + i - x)
@@ -126,6 +126,6 @@ def dense(slots: list[TargetSums], size: int) -> list[mi.Float64]:
     target written once, by its own lane)."""
     arrays = [dr.zeros(mi.Float64, size) for _ in slots[0].values]
     for slot in slots:
-        for array, value in zip(arrays, slot.values):
+        for array, value in zip(arrays, slot.values, strict=True):
             dr.scatter(array, value, slot.index, slot.valid)
     return arrays

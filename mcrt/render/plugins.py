@@ -31,7 +31,8 @@ def register_integrator(plugin: str, module_name: str, class_name: str) -> None:
     module = importlib.import_module(module_name)
     if mi.variant() != module._classes_variant:
         module = importlib.reload(module)
-    mi.register_integrator(plugin, lambda props, cls=getattr(module, class_name): cls(props))
+    cls = getattr(module, class_name)
+    mi.register_integrator(plugin, lambda props: cls(props))
 
 
 def parameter_row(name: str, kind: str, text: str) -> str:

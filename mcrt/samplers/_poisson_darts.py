@@ -90,7 +90,7 @@ class _Batch:
     def _scatter(self, arrays: tuple[np.ndarray, ...], p: np.ndarray, x: np.ndarray,
                  y: np.ndarray, *more: np.ndarray) -> None:
         """Write points (x, y, more...) of primary cells ``p`` and all their images."""
-        for arr, v in zip(arrays, (x, y) + more):
+        for arr, v in zip(arrays, (x, y) + more, strict=True):
             arr[p] = v
         local = p % self.gp2
         cnt = self.n_copies[local]
@@ -101,7 +101,7 @@ class _Batch:
         j = np.arange(total) + np.repeat(self.first_copy[local] - (np.cumsum(cnt) - cnt), cnt)
         q = (p - local)[rep] + self.copy_dst[j]
         values = (x[rep] + self.copy_sx[j], y[rep] + self.copy_sy[j]) + tuple(v[rep] for v in more)
-        for arr, v in zip(arrays, values):
+        for arr, v in zip(arrays, values, strict=True):
             arr[q] = v
 
     @staticmethod

@@ -39,7 +39,7 @@ def conclude(cells: list[dict[str, Any]], fits: list[dict[str, Any]], baseline: 
     base = {(c["scene"], c["spp_requested"]): c for c in cells if c["sampler"] == baseline}
     cost = {(f["scene"], f["sampler"]): f["seconds_per_sample"] for f in fits}
     out = []
-    for cell, biased in zip(cells, flags):
+    for cell, biased in zip(cells, flags, strict=True):
         values = {**cell, "biased": bool(biased), "verdict": _verdict(cell, bool(biased))}
         values.update(_ratio(cell, base.get((cell["scene"], cell["spp_requested"]))))
         per_sample = cost.get((cell["scene"], cell["sampler"]), math.nan)

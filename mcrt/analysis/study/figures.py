@@ -249,9 +249,9 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
                     color=colour, lw=1.1)
         handles.append(Line2D([], [], color=colour, marker="o", ms=4, lw=1.1))
         names.append(f"{label} ({slope:+.2f})" if math.isfinite(slope) else f"{label} (no fit)")
-        points += [(float(a), float(b)) for a, b in zip(x, yy)]
+        points += [(float(a), float(b)) for a, b in zip(x, yy, strict=True)]
         if time:
-            for i, (xi, yi, c) in enumerate(zip(x, yy, cells)):
+            for i, (xi, yi, c) in enumerate(zip(x, yy, cells, strict=True)):
                 text = ax.annotate(str(c["spp"]), (xi, yi), xytext=(4, 4),
                                    textcoords="offset points", fontsize=6, color="0.3")
                 text.set_in_layout(False)
@@ -304,7 +304,7 @@ def error_figure(result: StudyResult, axis: str) -> Figure:
     n = len(result.scenes)
     fig = new_figure(6.6 * n, 4.2)
     axes = fig.subplots(1, n, squeeze=False)[0]
-    for ax, scene in zip(axes, result.scenes):
+    for ax, scene in zip(axes, result.scenes, strict=True):
         plot_errors(ax, result, scene, axis)
     return fig
 
@@ -378,7 +378,7 @@ def summary_figure(result: StudyResult, scene: str | None = None,
     lim = max((float(np.percentile(np.abs(c.error), 99.5)) for c in cells), default=0) or 1.0
     left = (width - (columns * pitch - gap)) / 2
     image = None
-    for i, (title, c) in enumerate(zip(titles, cells)):
+    for i, (title, c) in enumerate(zip(titles, cells, strict=True)):
         r, col = divmod(i, columns)
         x = left + col * pitch + (pitch - gap - pw) / 2
         y = height - (plot_h + 50 + r * (ph + title_h + gap) + title_h + ph)
@@ -468,7 +468,7 @@ def images_figure(result: StudyResult, scene: str) -> Figure:
     ax.set_title(titles[0][0], fontsize=8)
     row_label(0, "reference")
     err_image = std_image = None
-    for row, (label, c) in enumerate(zip(labels, cells), start=1):
+    for row, (label, c) in enumerate(zip(labels, cells, strict=True), start=1):
         row_label(row, label)
         ax = axes_at(row, 0)
         ax.imshow(encode_srgb(c.render), interpolation="nearest")

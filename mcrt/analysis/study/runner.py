@@ -148,7 +148,7 @@ def environment() -> dict[str, Any]:
     return {"mcrt": __version__, "mitsuba": mi.__version__, "drjit": drjit_version,
             "variant": mi.variant(), "python": platform.python_version(),
             "platform": platform.platform(), "cpus": os.cpu_count(), "machine": machine(),
-            "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+            "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}
 
 
 def run_study(config: StudyConfig, progress: bool = False,
@@ -394,7 +394,7 @@ class _Run:
         by_cell: list[list[SeedRender]] = [[] for _ in cells]
         for rendered in folded:  # in task order: every cell's renders in round order
             by_cell[rendered.cell].append(rendered)
-        for (sampler, _), renders in zip(cells, by_cell):
+        for (sampler, _), renders in zip(cells, by_cell, strict=True):
             if self.retiming:
                 self.retime(name, sampler, spp, [r.time for r in renders])
             else:

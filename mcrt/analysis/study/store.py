@@ -24,6 +24,7 @@ report directory:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -401,10 +402,8 @@ def _forget_locks() -> None:
     """In a forked child: close the inherited descriptors (the parent's lock must
     end with the parent, not live on in its children)."""
     for fd, _ in _HELD.values():
-        try:
+        with contextlib.suppress(OSError):
             os.close(fd)
-        except OSError:
-            pass
     _HELD.clear()
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import quote
@@ -86,11 +87,11 @@ def write_exrs(result: StudyResult, directory: str | os.PathLike[str]) -> Links:
         meta = {**common, **cell_header(result, records[scene], label, spp)}
         mean = paths[f"{scene}/{label}/{spp}/mean"]
         first = paths[f"{scene}/{label}/{spp}/first"]
-        write_all(lambda: write_exr(mean, {"rgb": renders.mean, "variance": renders.variance},
-                                    {**meta, "mcrt_kind": "study_mean"}),
-                  lambda: write_exr(first, {"rgb": renders.first},
-                                    {**meta, "mcrt_kind": "study_seed", "seed": seed,
-                                     COMMAND: f"{meta[COMMAND]} --seed {seed}"}))
+        write_all(partial(write_exr, mean, {"rgb": renders.mean, "variance": renders.variance},
+                          {**meta, "mcrt_kind": "study_mean"}),
+                  partial(write_exr, first, {"rgb": renders.first},
+                          {**meta, "mcrt_kind": "study_seed", "seed": seed,
+                           COMMAND: f"{meta[COMMAND]} --seed {seed}"}))
         links[(scene, label, spp)] = {"mean": link(mean), "first": link(first)}
     return links
 

@@ -117,7 +117,7 @@ class PixelSums:
             self.planes = sums
         else:
             index = to_device(mi.UInt32, ids)
-            for plane, value in zip(self.planes, sums):
+            for plane, value in zip(self.planes, sums, strict=True):
                 dr.scatter_add(plane, value, index, mode=dr.ReduceMode.Direct)
             dr.eval(self.planes)
         self.empty = False
