@@ -2,7 +2,8 @@
 # Quick-start step 2: set everything up (see scripts/setup.sh), lint (ruff), type-check (mypy,
 # configured in pyproject.toml), check the layers (lint-imports, contracts in pyproject.toml),
 # then run the test suite,
-#   python -m pytest -q [extra args...]      e.g. bash scripts/test.sh -m "not slow" -x
+#   python -m pytest -q [extra args...]      e.g. bash scripts/test.sh -x -k sampler
+# `--fast` first: the everyday tier, -m "not slow" (no end-to-end or long tests; CI runs all).
 # A lint, type or layer error fails the run before any test starts.
 # CI runs exactly this script (.ci/run).
 set -euo pipefail
@@ -26,5 +27,9 @@ log "running: lint-imports (layer contracts in pyproject.toml, docs/architecture
 "$MCRT_VENV/bin/lint-imports" \
     || { err "an import breaks a layer contract (see above and docs/architecture.md)"; exit 1; }
 
+if [[ "${1:-}" == "--fast" ]]; then
+    shift
+    set -- -m "not slow" "$@"
+fi
 log "running: python -m pytest -q $*"
 exec "$MCRT_VENV/bin/python" -m pytest -q "$@"

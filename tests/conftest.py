@@ -18,6 +18,22 @@ import mcrt  # noqa: E402,F401  (activates the variant and registers the plugins
 from mcrt.cli import main  # noqa: E402
 from mcrt.samplers import registry  # noqa: E402
 
+#: Modules that drive whole programs and real components end to end (Dask clusters, killed and
+#: memory-capped processes, full disks, a browser, the notebook, whole studies, the fuzzed
+#: command line): every test in them is ``slow``, left out of the everyday tier
+#: (``bash scripts/test.sh --fast``, i.e. ``-m "not slow"``); CI runs everything.
+END_TO_END_MODULES = frozenset({
+    "test_cluster", "test_cluster_faults", "test_kill_and_resume", "test_resource_limits",
+    "test_damaged_state_files", "test_report_viewer", "test_notebook", "test_extending",
+    "test_fuzz_cli", "test_compare", "test_compare_resume", "test_study_state"})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.stem in END_TO_END_MODULES:
+            item.add_marker(pytest.mark.slow)
+
+
 #: Every sampler plugin mcrt ships, from the one registry: the contract tests run on each.
 OUR_SAMPLERS = registry.names("mcrt")
 

@@ -228,7 +228,7 @@ PLAN_ELSEWHERE = {
     **{f"effects/{n}.xml": "test_plan.py" for n in ("aa", "combined", "dof", "glossy",
                                                    "motion", "soft_shadows")},
     "cornell_box.xml": "test_plan.py", "checkerboard.xml": "test_plan.py",
-    **{f"foreign/{n}.xml": "test_foreign_plan_scenes.py"
+    **{f"foreign/{n}.xml": "test_third_party_scenes.py"
        for n in ("old_format", "medium_in_dielectric", "mesh_light", "env_lit")},
 }
 

@@ -93,7 +93,7 @@ def test_bad_configs_fail_before_rendering_with_one_line(tmp_path, capsys, chang
 
 
 def test_a_scene_without_box_filter_is_accepted(tmp_path):
-    """References develop with the film's own filter (issue 12): no refusal."""
+    """References develop with the film's own filter: no refusal."""
     scene = tmp_path / "gaussian.xml"
     scene.write_text(CHECKERBOARD.read_text().replace('<rfilter type="box"/>',
                                                       '<rfilter type="gaussian"/>'))

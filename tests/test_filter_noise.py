@@ -1,4 +1,4 @@
-"""Filtered films' correlated pixel noise (issue 12, class 6 leftovers): the
+"""Filtered films' correlated pixel noise: the
 variance factor of a mean over pixels, the bias interval and the aliasing null
 model, each against a brute-force filtered film on a tiny image.
 

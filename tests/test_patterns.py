@@ -171,7 +171,7 @@ def test_poisson_disk_is_blue_noise():
     """The Poisson-disk promise: spacing >= 0.75 d_hex in every pixel, little
     low-frequency power, a peak near f ~ 1.06 but no lattice. The
     low-frequency mean over B = 128 sets of ~90 frequencies has a standard
-    error of ~4e-4 (values ~0.0045), so 0.02 (issue 13's goal) is many standard
+    error of ~4e-4 (values ~0.0045), so 0.02 (the goal) is many standard
     errors away from the measured ~0.0045 and far below dart throwing alone
     (0.075), white noise (1) and jittered (0.3); a lattice's peak is P = N."""
     b, n = 128, 256

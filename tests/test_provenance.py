@@ -154,6 +154,7 @@ def test_from_renders_a_reference_again_without_its_cache(capsys):
     assert {"stderr", "variance", "count"} <= set(layers)
 
 
+@pytest.mark.slow
 def test_from_renders_every_image_of_a_study_again(capsys, tmp_path):
     """A study's seed images, its mean images (every seed rendered and folded
     in the study's order) and its reference: each reproduced bit for bit."""
@@ -210,6 +211,7 @@ def test_from_refuses_in_one_line(capsys, setup, argv, message):
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
 
 
+@pytest.mark.slow
 def test_from_renders_a_demo_image_again(capsys):
     """`mcrt demo`'s images record the same header keys and command."""
     assert run_cli(capsys, "-q", "demo", "--samplers", "sobol", "--rounds", "1",

@@ -1,4 +1,4 @@
-"""Issue 16: SIGKILL and SIGTERM at random moments (fixed seeds) of `render`,
+"""SIGKILL and SIGTERM at random moments (fixed seeds) of `render`,
 `render --adaptive`, `reference` and `compare` (real subprocesses on tiny
 scenes): the next run resumes from the last checkpoint and ends bit-identical
 to an uninterrupted run; no temporary file of a killed writer survives it."""

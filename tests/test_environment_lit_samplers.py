@@ -1,4 +1,4 @@
-"""Samplers on an environment-lit scene (issue 12, class 8).
+"""Samplers on an environment-lit scene.
 
 ``uniform_grid`` used to put the same cell centres in every pixel for every
 dimension, so every pixel drew the same light directions: on an
@@ -7,7 +7,7 @@ environment-lit scene that is a bias shared by all pixels (+21% to +25% at
 every other dimension by a uniform offset per pixel: unbiased, still one point
 per cell. Every sampler's image mean must be within 5 SE of an ``independent``
 reference (the SE from the per-pixel spread across seeds, see
-``test_foreign_plan_scenes``), and the old pattern (``jittered`` with jitter 0)
+``test_third_party_scenes``), and the old pattern (``jittered`` with jitter 0)
 must fail that check, so the check can see the bias.
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_foreign_plan_scenes import ENV, mean_and_se, z_score
+from test_third_party_scenes import ENV, mean_and_se, z_score
 
 from mcrt.core.render import render_film
 from mcrt.core.sampling import bind_film_width, make_sampler, quiet_sampler_warnings

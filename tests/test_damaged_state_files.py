@@ -1,4 +1,4 @@
-"""Issue 16: every file mcrt persists (render and adaptive checkpoints,
+"""Every file mcrt persists (render and adaptive checkpoints,
 reference cache states, a study's resume state and images, Poisson-disk tables)
 truncated or with random bytes and bits flipped (hypothesis, derandomized) is
 detected and set aside with one note, never used and never a crash; the next

@@ -1,4 +1,4 @@
-"""Issue 16: full disks, read-only directories and memory limits.
+"""Full disks, read-only directories and memory limits.
 
 Every writing command checks free space before work (one line, exit 2) and
 reports a failed write by its real cause, keeping finished work where it has a

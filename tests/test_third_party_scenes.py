@@ -1,4 +1,4 @@
-"""Scenes written by others (issue 12): old-format scenes, wrapper integrators,
+"""Scenes written by others: old-format scenes, wrapper integrators,
 participating media, one instantiation per plan, and the plan's messages.
 
 Statistical comparisons use the image mean of ``K`` renders with fixed seeds
