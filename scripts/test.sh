@@ -3,7 +3,8 @@
 # configured in pyproject.toml), check the layers (lint-imports, contracts in pyproject.toml),
 # then run the test suite,
 #   python -m pytest -q [extra args...]      e.g. bash scripts/test.sh -x -k sampler
-# `--fast` first: the everyday tier, -m "not slow" (no end-to-end or long tests; CI runs all).
+# `--fast` first: the everyday tier, -m "not slow" -n 2 (no end-to-end or long tests, two
+# workers; about a minute on 2 cores). CI runs every test.
 # A lint, type or layer error fails the run before any test starts.
 # CI runs exactly this script (.ci/run).
 set -euo pipefail
@@ -27,9 +28,9 @@ log "running: lint-imports (layer contracts in pyproject.toml, docs/architecture
 "$MCRT_VENV/bin/lint-imports" \
     || { err "an import breaks a layer contract (see above and docs/architecture.md)"; exit 1; }
 
-if [[ "${1:-}" == "--fast" ]]; then
+if [[ "${1:-}" == "--fast" ]]; then  # the everyday tier, on two pytest workers
     shift
-    set -- -m "not slow" "$@"
+    set -- -m "not slow" -n 2 "$@"
 fi
 log "running: python -m pytest -q $*"
 exec "$MCRT_VENV/bin/python" -m pytest -q "$@"

@@ -158,6 +158,7 @@ def checkerboard():
     return load_scene(CHECKERBOARD), reference.mean
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spp", [4, 16])
 def test_checkerboard_uniform_grid_aliases_jittered_and_poisson_disk_are_noise(checkerboard,
                                                                                 spp):

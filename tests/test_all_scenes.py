@@ -190,6 +190,7 @@ def compare(name: str, params: dict[str, str], tmp_path: Path) -> None:
     assert a[1] > 0 and b[1] > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(SHIPPED) + sorted(WRITTEN))
 def test_render_writes_files_and_agrees_with_mi_render(name, tmp_path):
     compare(name, SHIPPED.get(name, {}), tmp_path)

@@ -131,6 +131,7 @@ def _check(directory: Path, before: dict[Path, bytes], raised, error: BaseExcept
         assert "no space left on device" in message and "\n" not in message
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("error", ERRORS, ids=["ctrl-c", "disk-full"])
 @pytest.mark.parametrize("kind, only", [("csv", "results.csv"), ("json", "results.json"),
                                         ("report", "report.html")])

@@ -123,6 +123,7 @@ def test_a_claim_that_does_not_hold_fails(register):
     assert not result.passed and "not one point per cell" in result.detail
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("quick", [True, False], ids=["quick", "full"])
 @pytest.mark.parametrize("name", registry.names("mcrt"))
 def test_every_shipped_sampler_passes(name, quick):

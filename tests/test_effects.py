@@ -261,6 +261,7 @@ def test_streak_length_is_speed_times_shutter(tmp_path, speed, close):
     assert abs(width / (0.5 * STREAK_PX_PER_UNIT) - 1) < 0.10
 
 
+@pytest.mark.slow
 def test_default_subframes_show_no_strobing(tmp_path):
     """The streak profile with the plan's default sub-frame count stays within
     2% of a 256-sub-frame reference (strobing_index; 2% is about the smallest

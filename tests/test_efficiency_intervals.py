@@ -52,6 +52,7 @@ def test_efficiency_interval_covers_the_truth():
     assert normal_covered / TRIALS < covered / TRIALS - 0.02  # t matters at these df
 
 
+@pytest.mark.slow
 def test_paired_ratio_holds_under_a_drifting_load():
     """Sampler A is 1.5x faster than B and has half its MSE: efficiency ratio 3.
     Each round runs both under a common load factor drawn in [1, 3] (another

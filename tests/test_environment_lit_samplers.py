@@ -46,6 +46,7 @@ def sampler_mean(scene, name: str, **params) -> tuple[float, float]:
     return mean_and_se(images)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ALL_SAMPLERS)
 def test_every_sampler_is_unbiased_on_an_environment_lit_scene(env, name):
     scene, reference = env

@@ -59,6 +59,7 @@ def expected_edge(name: str, angle: float = 5.0) -> tuple[float, float]:
     return rise_width(x, esf), max(esf.max() - 1.0, 0.0) * 100
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FILTERS)
 def test_edge_blur_and_ringing_match_the_filter(name):
     scene = load_scene(EDGE, {RFILTER_PARAM: name, "width": "96", "height": "96"})
@@ -116,6 +117,7 @@ def test_the_filter_parameter_replaces_or_adds_the_film_filter(tmp_path):
     assert "Tent" in str(load_scene(bare, {RFILTER_PARAM: "tent"}).sensors()[0].film().rfilter())
 
 
+@pytest.mark.slow
 def test_a_study_varies_the_filter(tmp_path, monkeypatch):
     from mcrt.analysis.study import run_study
 

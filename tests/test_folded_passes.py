@@ -46,6 +46,7 @@ def test_only_mitsubas_stratified_samplers_keep_state_between_passes():
     assert not reseeds_each_pass(make_sampler("sobol", 4))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["jittered", "independent", "multijitter"])
 def test_folded_passes_give_the_stored_paths_bits(name, monkeypatch):
     """16 spp in 4 passes of 4: folded while tracing (the default for a box

@@ -263,6 +263,7 @@ def check_config(env, document: str | bytes, expected: str) -> None:
         assert all(line.startswith("mcrt: note: ") for line in lines if line not in errors), where
 
 
+@pytest.mark.slow
 @settings(FUZZ, max_examples=300)
 @given(case=mutated())
 @example(case=(toml_document(GOOD), OK))
@@ -270,6 +271,7 @@ def test_one_field_wrong(env, case):
     check_config(env, *case)
 
 
+@pytest.mark.slow
 @settings(FUZZ, max_examples=200)
 @given(case=random_documents)
 def test_random_documents(env, case):
@@ -285,6 +287,7 @@ def test_garbage(env, case):
     check_config(env, *case)
 
 
+@pytest.mark.slow
 @settings(FUZZ, max_examples=300)
 @given(data=st.dictionaries(st.sampled_from(KEYS), VALUES, max_size=9))
 def test_parse_config_raises_only_config_errors(data):

@@ -222,6 +222,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sampler", ALL_SAMPLERS)
 @pytest.mark.parametrize("case", CASES)
 def test_hard_scene_with_every_sampler(case, sampler):
@@ -365,6 +366,7 @@ def test_dynamic_range_float32_exr_keeps_both_ends(tmp_path, capsys, monkeypatch
     assert rgb.max() > 1e4 and rgb.min() < 2e-2
 
 
+@pytest.mark.slow
 def test_dynamic_range_many_passes_do_not_drift():
     """The same 64 samples per pixel (jittered is counter-based: pass k draws
     samples k*g .. k*g + g - 1 of each pixel) in 1 pass and in 64 passes of
@@ -382,6 +384,7 @@ def test_dynamic_range_many_passes_do_not_drift():
     np.testing.assert_allclose(film_many.rgb, film_one.rgb, rtol=1e-6, atol=0)
 
 
+@pytest.mark.slow
 def test_tens_of_millions_of_samples_per_pixel_do_not_drift():
     """One pixel of ``sky.xml`` (every sample exactly float32(0.3)) at 2^24 spp.
     Mitsuba's own film accumulates in float32 and drifts (measured: +2.1% at
@@ -406,6 +409,7 @@ def test_tens_of_millions_of_samples_per_pixel_do_not_drift():
 # --------------------------------------------------------------------------- extreme shapes and counts
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sampler", ALL_SAMPLERS)
 @pytest.mark.parametrize("shape,spp", [((4096, 1), 16), ((1, 4096), 16), ((1, 1), 256)])
 def test_extreme_image_shapes_give_the_furnace_value(shape, spp, sampler):

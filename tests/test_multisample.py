@@ -53,6 +53,7 @@ def _pair(edge, **sensor):
             _two_surfaces({"type": "multisample", "nested": flat}, edge, **sensor))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sampler,spp,rfilter", [
     ("independent", 16, "box"), ("stratified", 16, "gaussian"), ("jittered", 16, "box"),
     ("poisson_disk", 9, "tent"), ("ldsampler", 16, "mitchell")])

@@ -61,6 +61,7 @@ def _degenerate_with(filter_name: str, tmp_path: Path) -> mi.Scene:
     return mi.load_file(str(scene_file), width="24", height="12")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("filter_name", ["gaussian", "tent"])
 def test_filtered_film_leaves_non_finite_samples_out(filter_name, tmp_path):
     """A filtered film of a scene with NaN/Inf samples (stored with their x

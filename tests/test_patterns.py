@@ -227,6 +227,7 @@ def test_pattern_command_writes_plots_and_summary(tmp_path, capsys):
     assert not list(out.glob(".*.tmp"))  # atomic writes left nothing behind
 
 
+@pytest.mark.slow
 def test_pattern_command_params_and_rounding(tmp_path, capsys):
     out = tmp_path / "j"
     code, stdout, _ = run_cli(capsys, "-q", "pattern", "jittered", "--spp", "50", "--pixels",

@@ -43,6 +43,7 @@ def test_heaviside_family_matches_a_fine_grid():
     assert abs(np.mean(peers.heaviside_family(4096, seed=1).exact) - 0.5) < 0.02
 
 
+@pytest.mark.slow
 def test_gaussian_family_exact_values():
     fam = peers.gaussian_family(64, seed=3)
     est = fam.estimates(_grid(1500)[None])[0]   # midpoint rule: O(h^2) ~ 1e-6 for s >= 0.1

@@ -98,6 +98,7 @@ def count_calls(scene: mi.Scene, spp: int = 4) -> tuple[list[int], int, int]:
     return list(CALLS), int(dr.max(sampler.n1)[0]), int(dr.max(sampler.n2)[0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene, params, spp", [
     (CHECKERBOARD, {"width": "16", "height": "12"}, 4),
     (EFFECT_SCENES / "soft_shadows.xml", {"width": "16", "height": "12"}, 4),

@@ -225,6 +225,7 @@ def test_a_plugin_may_not_take_another_plugins_name(tmp_path):
     assert plugins.plugin_names(first) == ("mine",)
 
 
+@pytest.mark.slow
 def test_pattern_integrate_and_reference_take_the_name(tmp_path, scene, capsys):
     points = write_plugin(tmp_path, GENERATOR_PLUGIN, "mine")
     drjit = write_plugin(tmp_path, DRJIT_PLUGIN, "hash_noise")
@@ -404,6 +405,7 @@ def test_study_plugins_are_checked_loaded_and_recorded(tmp_path, scene):
             load_config(config, check_scenes=False)
 
 
+@pytest.mark.slow
 def test_a_study_with_plugins_runs_on_a_local_dask_cluster(tmp_path, scene, capsys, monkeypatch):
     """`mcrt compare` with ``plugins = [...]`` and ``--cluster local:2``: the
     worker processes load the plugin file before building its sampler, and get

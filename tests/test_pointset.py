@@ -212,6 +212,7 @@ def test_a_generator_sampler_survives_a_variant_switch():
 
 # -- the variance a point file renders with -----------------------------------------
 
+@pytest.mark.slow
 def test_point_files_render_with_the_variance_of_the_sampler_that_made_them(tmp_path):
     """Goal: a file of jittered sets renders with the variance of ``jittered``, a
     file of i.i.d. sets with that of ``independent``.

@@ -74,6 +74,7 @@ def test_n_tables_and_limits():
 
 # ----------------------------------------------------------------------------- distances
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [2, 3, 5, 10, 11, 50, 300, 1500])
 def test_toroidal_min_distance_matches_references(n):
     rng = np.random.default_rng(n)
@@ -150,6 +151,7 @@ def test_generate_every_small_n(n):
         assert rho(sets, n).min() >= pt.RHO_TARGET
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [16, 64, 256, 1024])
 def test_tables_spacing(n, cache):
     tables = pt.load_tables(n)
@@ -166,6 +168,7 @@ def test_tables_spacing(n, cache):
     assert np.median(r) < 0.85
 
 
+@pytest.mark.slow
 def test_largest_n(cache):
     n = pt.MAX_POINTS
     tables = pt.load_tables(n, disk_cache=False)

@@ -104,6 +104,7 @@ def test_a_default_name_never_replaces_a_file_mcrt_did_not_write(capsys):
     assert code == 2 and "a file mcrt did not write" in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("argv", [
     ["--sampler", "jittered", "--spp", "16", "-P", "jitter=0.5", "--seed", "7"],
     ["--sampler", "zsobol", "--spp", "8", "--effect", "indirect=off"],

@@ -172,6 +172,7 @@ def test_no_cache_neither_reads_nor_writes(scene, cache):
     assert not again.cached and same_bits(ref, again)
 
 
+@pytest.mark.slow
 def test_resume_after_interruption_is_bit_identical(scene, cache):
     uninterrupted = get_reference(scene, SMALL, spp=96, spp_per_pass=16, cache=False)
     assert uninterrupted.passes == 6
@@ -253,6 +254,7 @@ def test_counts_beyond_2_32_are_exact(tmp_path):
     assert int(back["samples"]) == 24_000_000_000 and int(back["spp"]) == 2 * n
 
 
+@pytest.mark.slow
 def test_many_passes_add_up_exactly(scene, cache):
     # 2x2 pixels, 128 passes of 8 samples: every pixel gets exactly 1024 samples.
     ref = get_reference(scene, {"res": "2", "max_depth": "2"}, spp=1024, spp_per_pass=8,

@@ -61,6 +61,7 @@ REPLAYED = ("uniform_grid", "jittered", "poisson_disk", "sobol", "zsobol", "poin
             "independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", registry.names("mcrt") + registry.names("mitsuba"))
 def test_every_sampler_replays_the_bits_of_an_unfrozen_render(monkeypatch, name):
     scene = small_cornell(16, box_filter=True)
@@ -68,6 +69,7 @@ def test_every_sampler_replays_the_bits_of_an_unfrozen_render(monkeypatch, name)
     assert name in REPLAYED and recorded == 1  # traced once: the other seeds replayed
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["gaussian", "aov", "passes", "xyz"])
 def test_filters_aovs_and_several_passes_replay_the_same_bits(monkeypatch, case):
     scene = small_cornell(16, box_filter=case != "gaussian")

@@ -73,6 +73,7 @@ def test_loads_from_dict_and_xml(name):
     assert isinstance(sampler, mi.Sampler) and sampler.sample_count() == 16
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CONTRACT)
 def test_renders_in_mi_render_from_an_xml_scene(name):
     width = xml_params(sampler_params(name, 4))  # plain Mitsuba: what mcrt fills in is given
@@ -255,6 +256,7 @@ def test_permutation_is_a_bijection_for_every_key(n):
     assert (np.sort(_permutations(n, keys), axis=1) == np.arange(n)).all()
 
 
+@pytest.mark.slow
 def test_permutation_pairs_and_dimension_relations_look_random():
     """The power-of-two permutation behind every stratum assignment (padding),
     over 2e5 well-mixed keys: chi-square per degree of freedom (1 for a truly

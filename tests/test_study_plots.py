@@ -257,6 +257,7 @@ FIGURES = {"error_vs_spp": lambda r: study_figures.error_figure(r, "spp"),
            "images_cornell_box": lambda r: study_figures.images_figure(r, "cornell_box")}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(FIGURES))
 def test_no_text_overlaps(flagged, name):
     """No two texts of a study figure overlap (spp labels, legends, titles,
@@ -265,6 +266,7 @@ def test_no_text_overlaps(flagged, name):
     assert overlaps(fig) == []
 
 
+@pytest.mark.slow
 def test_no_text_overlaps_small_study():
     """Two samplers, three spp: the same holds for a small study."""
     result = synthetic_result(samplers=("jittered", "independent"), spp=(4, 16, 64))
@@ -286,6 +288,7 @@ def test_no_text_overlaps_one_scene():
         assert overlaps(make(result)) == []
 
 
+@pytest.mark.slow
 def test_no_text_overlaps_narrow_images():
     """Images 170-200 pixels wide, shown 1:1: narrow error maps and colour bars
     (errors whose colour bar ticks were 0.000 .. 0.050 collided at 200 pixels)."""
@@ -465,6 +468,7 @@ def test_compact_tick_labels(value, text):
     assert study_figures._compact(value) == text
 
 
+@pytest.mark.slow
 def test_colour_bars_have_few_ticks(flagged):
     """Colour bars have 3 to 6 intervals between ticks, about one per 70 pixels."""
     for fig in (study_figures.summary_figure(flagged), study_figures.images_figure(flagged, "checkerboard")):

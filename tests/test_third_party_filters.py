@@ -71,6 +71,7 @@ def _brute_force(scene: mi.Scene, spp: int, seed: int):
     return mean, var
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("filter_name", ["gaussian", "tent", "mitchell"])
 def test_filtered_statistics_match_brute_force(filter_name):
     """The reference's per-pixel estimate and its variance equal a brute-force
@@ -88,6 +89,7 @@ def test_filtered_statistics_match_brute_force(filter_name):
     np.testing.assert_allclose(film.rgb, stats.mean, rtol=2e-6, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_filtered_standard_error_is_calibrated():
     """Across 32 independent renders the spread of each filtered pixel matches
     its predicted variance, where the box-binned variance / spp does not.

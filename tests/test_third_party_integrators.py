@@ -25,6 +25,7 @@ def _load(path, **params) -> mi.Scene:
 # ----------------------------------------------------------------- class 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene_path, integrator", [
     (SPHERE, "prb"), (SPHERE, "prb_basic"), (SPHERE, "direct_projective"),
     (MEDIUM, "prbvolpath")])
@@ -49,6 +50,7 @@ def test_differentiable_integrators_agree_with_mitsuba(scene_path, integrator):
     np.testing.assert_allclose(film.rgb, stats.mean, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["render", "adaptive", "reference"])
 def test_prb_works_in_every_command(tmp_path, capsys, mode):
     """``prb`` renders in ``render``, ``render --adaptive`` and ``reference``."""
@@ -142,6 +144,7 @@ def test_failure_writing_keeps_the_render(tmp_path, capsys, monkeypatch):
 # ----------------------------------------------------------------- class 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", [[], ["--adaptive", "--spp", "64"]], ids=["fixed", "adaptive"])
 @pytest.mark.parametrize("pixel_format, labels", [
     ("luminance", ["Y"]), ("luminance_alpha", ["Y", "A"]), ("xyz", ["X", "Y", "Z"]),

@@ -89,6 +89,7 @@ def test_old_format_scene_is_planned_with_mitsubas_upgraded_names():
                          if s.bsdf().class_name() == "SmoothDielectric"][0])  # intIOR
 
 
+@pytest.mark.slow
 def test_old_format_scene_renders_as_mi_render_does(tmp_path):
     """The planned render agrees with ``mi.render`` of the same file, and the
     comparison is sharp enough to see the old failure (``maxDepth`` ignored:
@@ -166,10 +167,12 @@ def test_a_medium_inside_a_dielectric_scatters_indirect_light(tmp_path):
     assert any("ignores them" in n for n in plan_scene(path).plan.notes)
 
 
+@pytest.mark.slow
 def test_a_medium_inside_a_dielectric_renders_as_mi_render_does():
     assert z_score(planned_mean(MEDIUM, spp=8), mitsuba_mean(MEDIUM, spp=8)) < 5
 
 
+@pytest.mark.slow
 def test_a_sensor_attached_to_a_shape_is_rendered_from(capsys, tmp_path):
     """The scene's only sensor is an irradiance meter inside a shape: mcrt plans and
     renders it as ``mi.render`` does (a 1x1 film), instead of finding no sensor.
@@ -232,6 +235,7 @@ SHALLOW = """<scene version="3.0.0">
 </scene>"""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("depth", [0, 1])
 def test_a_path_that_stops_before_any_lighting_is_rendered_as_authored(tmp_path, depth):
     """``path`` with max_depth 0 renders nothing and with 1 only the emitters the
@@ -338,6 +342,7 @@ def test_the_scene_sample_count_rounding_is_a_note_not_a_warning(tmp_path, caplo
     assert any("sample_count 128 as 144" in n for n in plan.notes)
 
 
+@pytest.mark.slow
 def test_soft_shadows_off_keeps_the_power_of_a_flat_mesh_light():
     """A flat quad mesh becomes a spot along its normal emitting the area light's
     power ``pi L A``; the lighting then stays within 10% (measured +4%; the old

@@ -25,6 +25,7 @@ def scene_and_reference():
     return scene, reference
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", OUR_SAMPLERS)
 def test_image_mean_matches_the_reference(scene_and_reference, name):
     """Margin: with Mitsuba's independent sampler the image mean of this scene

@@ -174,6 +174,7 @@ def pixel_variance(scene: mi.Scene, sampler: str) -> np.ndarray:
     return PixelStats.from_images(means).variance.mean(-1)
 
 
+@pytest.mark.slow
 def test_jittered_beats_independent_on_cornell_box_edges():
     """Mitsuba's Cornell box (path tracer, box filter), 32 x 32 pixels at 64 spp.
 

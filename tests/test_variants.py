@@ -38,6 +38,7 @@ def image_mean_se(stats) -> np.ndarray:
     return np.sqrt((stats.variance / n).sum(axis=(0, 1))) / stats.count.size
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_mono",
                                      "llvm_ad_spectral_polarized"])
 def test_core_agrees_with_mi_render(variant):
