@@ -191,3 +191,25 @@ def test_a_film_without_pixels_is_refused_by_check_and_by_a_run(tmp_path, capsys
         assert lines[0].startswith("mcrt: error: scene 'cornell_box': ")
         assert "the film has 0x0 pixels" in lines[0]
     assert calls == [] and not (tmp_path / "o").exists()
+
+
+def test_mcrt_compare_in_process_lets_go_of_its_directory(tmp_path, capsys, monkeypatch):
+    """`main(["compare", ...])` from Python releases the report directory's lock
+    when it returns (not when the state is collected): another process may then
+    write into it."""
+    import mcrt.analysis.study.store as store
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    path = tmp_path / "s.toml"
+    path.write_text(study_toml(CHECKERBOARD, name="s", params="{ width = 32, height = 24 }"))
+    kept: list = []
+    original = StudyState.open
+
+    def keep(*args, **kwargs):  # a reference that outlives the command
+        kept.append(original(*args, **kwargs))
+        return kept[-1]
+
+    monkeypatch.setattr(StudyState, "open", keep)
+    code, _, err = run_cli(capsys, "-q", "compare", str(path), "-o", str(tmp_path / "o"))
+    assert code == 0, err
+    assert kept and store._HELD == {}

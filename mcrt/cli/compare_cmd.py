@@ -111,7 +111,12 @@ def run(args: argparse.Namespace) -> int:
                                 "the study's metrics and report")
     _common.note_first_run()
 
-    state = StudyState.open(out, config, restart=args.restart)
+    with StudyState.open(out, config, restart=args.restart) as state:  # the lock, released
+        return _measure(args, config, state, out)
+
+
+def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> int:
+    """Measure the study's cells (resuming ``state``), write the report, summarise."""
     if args.retime:
         if len(state.cells) < config.cells:
             raise McrtError(f"--retime needs every cell measured: {len(state.cells)} of "
