@@ -291,16 +291,20 @@ def test_a_full_disk_keeps_the_finished_render_and_the_rerun_takes_it(
 
 
 def test_a_refused_study_leaves_no_folder_on_a_small_disk(tmp_path, cache, capsys, small_disk):
-    """`mcrt compare -o DIR` (and `mcrt render -o DIR/img`) on a disk too small
-    for the outputs is refused before any work and removes the folders it
-    created for them (it used to leave DIR, empty); folders that were there
-    stay."""
+    """`mcrt compare -o DIR` (and `render`, `reference`, `demo`, `pattern`,
+    `integrate`) on a disk too small for the outputs is refused before any work
+    and removes the folders it created for them (they used to leave DIR, empty);
+    folders that were there stay."""
     config = tmp_path / "study.toml"
     config.write_text(study_toml(CHECKERBOARD, name="s"))
     (small_disk / "kept").mkdir()
     for args in (["compare", str(config), "-o", str(small_disk / "a" / "b")],
                  ["compare", str(config), "-o", str(small_disk / "kept" / "c")],
-                 ["render", str(CORNELL), "-D", "res=512", "-o", str(small_disk / "r" / "img")]):
+                 ["render", str(CORNELL), "-D", "res=512", "-o", str(small_disk / "r" / "img")],
+                 ["reference", str(CORNELL), "-D", "res=1024", "-o", str(small_disk / "f" / "x")],
+                 ["demo", "-o", str(small_disk / "d")],
+                 ["pattern", "jittered", "-o", str(small_disk / "p")],
+                 ["integrate", "disk", "--sampler", "jittered", "-o", str(small_disk / "i")]):
         code, _, err = run_cli(capsys, "-q", *args)
         assert "not enough free space" in _one_line(code, err)
         assert sorted(p.name for p in small_disk.rglob("*")) == ["kept"], err

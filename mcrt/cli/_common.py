@@ -102,10 +102,11 @@ def check_output_files(*paths: Path) -> None:
 
 @contextlib.contextmanager
 def removed_if_refused(directory: Path) -> Iterator[None]:
-    """The checks a command makes before any work: if the block raises, the
-    folders it created on the way to ``directory`` (``-o out/a/b``: ``out``,
+    """The checks a command makes before any work: if the block raises an error,
+    the folders it created on the way to ``directory`` (``-o out/a/b``: ``out``,
     ``a`` and ``b`` if none existed) are removed again, each only if still
-    empty, so a refused command leaves nothing behind."""
+    empty, so a refused command leaves nothing behind. (Not on Ctrl-C: an
+    interrupted command writes its partial outputs there.)"""
     missing: list[Path] = []
     path = Path(os.path.abspath(directory))
     try:
@@ -116,7 +117,7 @@ def removed_if_refused(directory: Path) -> Iterator[None]:
         missing = []
     try:
         yield
-    except BaseException:
+    except Exception:
         for made in missing:  # deepest first
             try:
                 made.rmdir()

@@ -69,14 +69,15 @@ def run(args: argparse.Namespace) -> int:
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise McrtError(f"shipped scene(s) not found: {', '.join(missing)} (use --scenes DIR)")
-    out = ensure_writable_dir(Path(args.output))
-    # All loading errors first. The shipped demo scenes are static: no sub-frames.
-    scenes = {path.stem: plan_scene(path).scene for path in paths}
-    pixels = sum(int(s.sensors()[0].film().size()[0]) * int(s.sensors()[0].film().size()[1])
-                 for s in scenes.values())
-    # Per scene: the reference and each sampler's EXR (RGB) and PNG, and the contact sheet.
-    _common.require_space(out, _common.PLOTS_BYTES + pixels * (len(samplers) + 1)
-                          * (_common.image_bytes(1, 3) + 2 * 4), "the images")
+    with _common.removed_if_refused(Path(args.output)):  # a refused demo leaves no folder
+        out = ensure_writable_dir(Path(args.output))
+        # All loading errors first. The shipped demo scenes are static: no sub-frames.
+        scenes = {path.stem: plan_scene(path).scene for path in paths}
+        pixels = sum(int(s.sensors()[0].film().size()[0]) * int(s.sensors()[0].film().size()[1])
+                     for s in scenes.values())
+        # Per scene: the reference and each sampler's EXR (RGB) and PNG, and the contact sheet.
+        _common.require_space(out, _common.PLOTS_BYTES + pixels * (len(samplers) + 1)
+                              * (_common.image_bytes(1, 3) + 2 * 4), "the images")
 
     _common.note_first_run()
     rows = []

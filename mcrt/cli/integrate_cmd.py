@@ -101,8 +101,10 @@ def run(args: argparse.Namespace) -> int:
     if args.integrands > 1 << 16:
         raise McrtError(f"--integrands: at most {1 << 16}, got {args.integrands}")
     counts = sample_counts(args.min_n, args.max_n)
-    out = ensure_writable_dir(Path(args.output or f"out/integrate_{args.integrand}"))
-    _common.require_space(out, _common.PLOTS_BYTES, "the plots")
+    target = Path(args.output or f"out/integrate_{args.integrand}")
+    with _common.removed_if_refused(target):  # a refused command leaves no folder
+        out = ensure_writable_dir(target)
+        _common.require_space(out, _common.PLOTS_BYTES, "the plots")
     if peer:
         return _integrate_peers.run(args, samplers, out)
     if args.trials is None:

@@ -130,8 +130,10 @@ def run(args: argparse.Namespace) -> int:
     kmax = args.kmax or patterns.default_kmax(n)
     if kmax > 4096:
         raise McrtError(f"--kmax: at most 4096, got {kmax}")
-    out = ensure_writable_dir(Path(args.output or f"out/pattern_{name}"))
-    _common.require_space(out, _common.PLOTS_BYTES, "the plots")
+    target = Path(args.output or f"out/pattern_{name}")
+    with _common.removed_if_refused(target):  # a refused command leaves no folder
+        out = ensure_writable_dir(target)
+        _common.require_space(out, _common.PLOTS_BYTES, "the plots")
 
     per_set = patterns.spectrum_work(1, n, kmax)
     spectrum_sets = max(1, min(args.pixels, SPECTRUM_BUDGET // per_set))

@@ -76,26 +76,19 @@ def run(args: argparse.Namespace) -> int:
     params = parse_defines(args.defines)
     check_scene_file(args.scene)
     out = _output_path(args.output, args.scene)
-    check_output_files(out)
-    note_first_run()
-
-    try:
-        with _common.cluster_executor(args.cluster) as executor:
-            ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
-                                seed=args.seed, spp_per_pass=args.spp_per_pass,
-                                progress=not args.quiet, cache=not args.no_cache,
-                                before_work=lambda w, h: _before_work(out, w * h),
-                                executor=executor)
-    except Interrupted as stop:
-        part = stop.partial
-        meta = {**reference_metadata(part, args.scene, params), "partial": 1,
-                "passes_done": stop.done, "spp": int(part.stats.count.max())}
-        write_exr(out, reference_layers(part), meta)
-        print(f"interrupted after {stop.done} of {part.passes} passes: wrote the partial "
-              f"reference ({int(part.stats.count.max())} of {part.spp} spp) to {out}")
-        if not args.no_cache:
-            print("run the same command again to resume")
-        return 130
+    # Refused (a check, too little room) or failed before writing: no empty folder is left.
+    with _common.removed_if_refused(out.parent):
+        check_output_files(out)
+        note_first_run()
+        try:
+            with _common.cluster_executor(args.cluster) as executor:
+                ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
+                                    seed=args.seed, spp_per_pass=args.spp_per_pass,
+                                    progress=not args.quiet, cache=not args.no_cache,
+                                    before_work=lambda w, h: _before_work(out, w * h),
+                                    executor=executor)
+        except Interrupted as stop:
+            return _interrupted(stop, args, params, out)
     try:
         write_exr(out, reference_layers(ref), reference_metadata(ref, args.scene, params))
     except (McrtError, OSError) as error:
@@ -117,6 +110,20 @@ def run(args: argparse.Namespace) -> int:
           f"max stderr {float(np.max(ref.standard_error)):.3g}")
     print(f"wrote {out}")
     return 0
+
+
+def _interrupted(stop: Interrupted, args: argparse.Namespace, params: dict[str, str],
+                 out: Path) -> int:
+    """Ctrl-C / SIGTERM: the finished passes written as a partial reference."""
+    part = stop.partial
+    meta = {**reference_metadata(part, args.scene, params), "partial": 1,
+            "passes_done": stop.done, "spp": int(part.stats.count.max())}
+    write_exr(out, reference_layers(part), meta)
+    print(f"interrupted after {stop.done} of {part.passes} passes: wrote the partial "
+          f"reference ({int(part.stats.count.max())} of {part.spp} spp) to {out}")
+    if not args.no_cache:
+        print("run the same command again to resume")
+    return 130
 
 
 def _kept(ref) -> str:
