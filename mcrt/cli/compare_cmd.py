@@ -18,7 +18,6 @@ from pathlib import Path
 from ..analysis.report import report_files, write_report
 from ..analysis.study import (
     STATE_DIR,
-    StudyInterrupted,
     StudyResult,
     StudyState,
     load_config,
@@ -26,6 +25,7 @@ from ..analysis.study import (
 )
 from ..analysis.study.conclude import bias_lines, interval_text, ratio_sentence, timing_lines
 from ..core.atomic import remedy
+from ..core.job import Interrupted
 from ..errors import McrtError
 from . import SUMMARIES, _common
 from ._common import check_output_files, ensure_writable_dir, examples
@@ -130,8 +130,8 @@ def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> 
         with _common.cluster_executor(args.cluster) as executor:
             result = run_study(config, progress=not args.quiet, state=state, executor=executor,
                                retime=args.retime)
-    except StudyInterrupted as stop:
-        return _write_partial(stop.result, args, out)
+    except Interrupted as stop:
+        return _write_partial(stop.partial, args, out)
     except McrtError as error:
         if state.cells and state.writable:
             raise McrtError(f"{error} ({len(state.cells)} finished cells are saved in "

@@ -66,8 +66,9 @@ Interruption and resume: with a :class:`StudyState` (``mcrt compare`` keeps one
 in ``<report dir>/.mcrt-resume/``) every finished cell is saved atomically as
 soon as it is done, keyed by :func:`study_key` (the configuration's content,
 the scenes' content and the software versions). A Ctrl-C raises
-:class:`StudyInterrupted`, a ``KeyboardInterrupt`` carrying the partial
-:class:`StudyResult` of the finished cells; the next run with the same key
+:class:`~mcrt.core.job.Interrupted` (mcrt's one interruption, a
+``KeyboardInterrupt``) carrying the partial :class:`StudyResult` of the
+finished cells as ``partial``; the next run with the same key
 takes the saved cells instead of rendering them again (a group's cells finish
 together: the renders of an interrupted group are rendered again).
 
@@ -103,7 +104,7 @@ from .config import (
     parse_config,
 )
 from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, Column, Field
-from .runner import ReferenceInfo, StudyInterrupted, StudyResult, environment, run_study
+from .runner import ReferenceInfo, StudyResult, environment, run_study
 from .store import STATE_DIR, STATE_FORMAT, StudyState, reference_fingerprint, study_key
 from .summary import CellImages, CellRenders, cell_images, cell_renders, fit_sampler, summarise_cell
 
@@ -122,7 +123,7 @@ def _fit_sampler(config: StudyConfig, scene: str, sampler: str,
 __all__ = ["CELL_FIELDS", "FIT_FIELDS", "MAX_NAME_BYTES", "MIN_REFERENCE_FACTOR",
            "RESOLVED_FACTOR", "STATE_DIR", "STATE_FORMAT", "STUDY_NULL_DRAWS", "WARMUP_SEED",
            "CellImages", "CellRenders", "Column", "ConfigError", "Field", "ReferenceInfo",
-           "ReferenceSpec", "SamplerSpec", "SceneSpec", "StudyConfig", "StudyInterrupted",
+           "ReferenceSpec", "SamplerSpec", "SceneSpec", "StudyConfig",
            "StudyResult", "StudyState", "cell_images", "cell_keys", "cell_renders",
            "check_config", "environment", "fit_sampler", "load_config", "parse_config",
            "reference_fingerprint", "run_study", "study_key", "summarise_cell"]

@@ -20,7 +20,7 @@ import numpy as np
 
 from ... import __version__
 from ...core.executor import cluster_status
-from ...core.job import Job, run_job
+from ...core.job import Interrupted, Job, run_job
 from ...core.progress import Progress
 from ...core.stats import PixelStats
 from ...core.timing import Sample, machine, round_orders
@@ -130,14 +130,6 @@ class StudyResult:
         raise KeyError((scene, sampler))
 
 
-class StudyInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`run_study`; ``result`` holds the finished cells."""
-
-    def __init__(self, result: StudyResult):
-        super().__init__("study interrupted")
-        self.result = result
-
-
 def environment() -> dict[str, Any]:
     """Versions and machine facts recorded with every study."""
     import drjit as dr
@@ -160,8 +152,9 @@ def run_study(config: StudyConfig, progress: bool = False,
     With ``state``, cells saved there are taken instead of rendered and every
     cell finished now is added to it. With ``retime`` the cells saved in
     ``state`` are timed again (the timing protocol's rounds, timing-only renders)
-    and keep their errors; cells not saved are left out. Ctrl-C raises
-    :class:`StudyInterrupted` with the result of the cells finished so far.
+    and keep their errors; cells not saved are left out. Ctrl-C raises the one
+    :class:`~mcrt.core.job.Interrupted` with ``partial`` the result of the
+    cells finished so far (``done`` of ``total`` cells).
     """
     if not config.effective_spp:
         check_config(config)
@@ -176,8 +169,9 @@ def run_study(config: StudyConfig, progress: bool = False,
     try:
         for spec in config.scenes:
             run.scene(spec)
-    except KeyboardInterrupt:  # a render's own RenderInterrupted is one too
-        raise StudyInterrupted(run.result(run.current)) from None
+    except KeyboardInterrupt:  # a render's own Interrupted is one too
+        partial = run.result(run.current)
+        raise Interrupted(partial, len(partial.cells), config.cells) from None
     finally:
         run.bar.close()
     return run.result()
