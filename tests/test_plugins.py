@@ -471,7 +471,7 @@ def test_a_changed_plugin_or_point_file_is_another_sampler_in_every_key(tmp_path
     from mcrt.analysis.reference import reference_key
     from mcrt.analysis.study.config import parse_config
     from mcrt.analysis.study.store import study_key
-    from mcrt.cli.render_cmd import render_key
+    from mcrt.core.render_job import render_key
     from mcrt.core.sampling import sampler_fingerprint
     from mcrt.samplers.point_sources import jittered_sets
 

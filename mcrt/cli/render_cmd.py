@@ -11,29 +11,25 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import logging
 from contextlib import nullcontext
 from dataclasses import asdict
 from pathlib import Path
 
-from ..cache import cache_dir
 from ..core.atomic import check_free_space, remedy
 from ..core.engine import reseeds_each_pass
 from ..core.executor import cluster_address
-from ..core.job import CheckpointStore, Interrupted, content_key
-from ..core.memory import film_bytes, require_memory
+from ..core.job import CheckpointStore, Interrupted
 from ..core.render import FilmRender, render_film
+from ..core.render_job import checkpoint_paths, render_key, require_render_memory
 from ..core.sampling import (
     base_seed,
     check_sampler_name,
     make_sampler,
     quiet_sampler_warnings,
-    sampler_fingerprint,
     sampler_name,
 )
 from ..core.sampling import sampler_params as sampler_params_of
-from ..core.scene_files import scene_digest
 from ..core.trace import film_grid_size
 from ..errors import McrtError
 from ..io import write_exr, write_png
@@ -137,7 +133,9 @@ def run(args: argparse.Namespace) -> int:
     with _common.removed_if_refused(exr_path.parent):  # a refused render leaves no folder
         check_output_files(exr_path, png_path, *([heat_path] if adaptive_settings else []))
         check_output_space(exr_path.parent, scene)
-        _check_memory(scene, adaptive_settings)
+        width, height = (int(v) for v in film_grid_size(scene.sensors()[0].film()))
+        require_render_memory(width, height, adaptive_settings.subpixels
+                              if adaptive_settings is not None else None)
         cluster = _render_cluster(args, sampler, adaptive=adaptive_settings is not None)
         metadata = render_metadata(args, params, sampler, budget, scene, planned.plan,
                                    adaptive_settings)
@@ -156,8 +154,8 @@ def run(args: argparse.Namespace) -> int:
         log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
                      passes, sampler_params=metadata["sampler_params"])
-    _common.check_state_files(_resume_paths(exr_path, key), "the render's checkpoint")
-    store = CheckpointStore(_resume_paths(exr_path, key), key, job_text(args, spp, stem))
+    _common.check_state_files(checkpoint_paths(exr_path, key), "the render's checkpoint")
+    store = CheckpointStore(checkpoint_paths(exr_path, key), key, job_text(args, spp, stem))
     state = store.load()
     if state is not None:
         log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
@@ -305,12 +303,6 @@ def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -
               lambda: write_png(png_path, result.rgb))  # linear sRGB, whatever the format
 
 
-def _resume_paths(exr_path: Path, key: str) -> tuple[Path, Path]:
-    """Where a checkpoint is kept: next to the output, else in the cache."""
-    return (exr_path.with_name(f".{exr_path.name}.mcrt-resume.npz"),
-            cache_dir("resume") / f"{key}.npz")
-
-
 def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
                   paths: tuple[Path, Path, Path], key: str) -> int:
     """``mcrt render --adaptive``: passes with active-pixel counts, EXR layers for
@@ -319,8 +311,8 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     from ..io.heatmap import write_heatmap
 
     exr_path, png_path, heat_path = paths
-    _common.check_state_files(_resume_paths(exr_path, key), "the render's checkpoint")
-    store = CheckpointStore(_resume_paths(exr_path, key), key,
+    _common.check_state_files(checkpoint_paths(exr_path, key), "the render's checkpoint")
+    store = CheckpointStore(checkpoint_paths(exr_path, key), key,
                             job_text(args, settings.max_spp, exr_path.with_suffix("")))
     state = store.load()
     if state is not None:
@@ -404,29 +396,6 @@ def _note_shading_noise(effects_on: list[str]) -> None:
 #: Above this share of pixels that did not pass the error test, an adaptive render says
 #: that the budget, not the threshold, decided the image.
 EXHAUSTED_SHARE = 0.5
-
-
-def _check_memory(scene, settings) -> None:
-    """A one-line error before rendering if even the smallest pass cannot fit."""
-    width, height = (int(v) for v in film_grid_size(scene.sensors()[0].film()))
-    pixels = width * height
-    if settings is None:
-        fixed = film_bytes(pixels)
-    else:  # moments, counts, sub-pixel sums (4 channels) and their snapshot copies
-        fixed = pixels * (72 + settings.subpixels ** 2 * 40) * 3
-    require_memory(pixels, fixed, f"a {width}x{height} render")
-
-
-def render_key(scene: str, params: dict[str, str], overrides: dict[str, bool], sampler: str,
-               spp: int, seed: int, passes: int | None, **settings) -> str:
-    """Identity of a render for resuming: the scene's content and every setting
-    (and a user's sampler code, see :func:`sampler_fingerprint`)."""
-    given = settings.get("sampler_params")  # a dict, or the EXR header's JSON text
-    code = sampler_fingerprint(sampler, json.loads(given) if isinstance(given, str) else given)
-    return content_key({"kind": "render", "scene": scene_digest(scene, params),
-                        "params": sorted(params.items()), "effects": sorted(overrides.items()),
-                        "sampler": sampler, "spp": spp, "seed": seed, "passes": passes,
-                        "settings": settings, **({"sampler_code": code} if code else {})})
 
 
 def check_output_space(directory: Path, scene) -> None:
