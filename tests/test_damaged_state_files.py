@@ -26,7 +26,7 @@ from mcrt.analysis.pass_plan import plan_passes
 from mcrt.analysis.reference_cache import load_state, save_state
 from mcrt.analysis.study.summary import CellImages, CellRenders
 from mcrt.core import atomic
-from mcrt.core.job import Checkpoint, CheckpointPacer, CheckpointStore
+from mcrt.core.job import Checkpoint, Checkpointing, CheckpointPacer, CheckpointStore
 from mcrt.core.render import render_film
 from mcrt.core.stats import PixelStats
 from mcrt.render.adaptive import AdaptiveSettings, render_adaptive
@@ -69,8 +69,8 @@ def kinds(tmp_path_factory) -> dict:
     assert film.checkpoint is not None
     checkpoint_kind("render", film.checkpoint, "render-key")
     saved: list[Checkpoint] = []
-    render_adaptive(scene, settings=AdaptiveSettings(min_spp=4, max_spp=16), save=saved.append,
-                    save_every=0)
+    render_adaptive(scene, settings=AdaptiveSettings(min_spp=4, max_spp=16),
+                    checkpoints=Checkpointing(save=saved.append, every=0))
     checkpoint_kind("adaptive", saved[-1], "adaptive-key")
 
     plan = plan_passes("independent", 8, 32 * 32, 2)
@@ -263,10 +263,10 @@ def test_every_pass_is_checkpointed_when_asked(tmp_path):
     scene = mi.load_file(str(_tiny(tmp_path)))
     whole = render_film(scene, spp=16, passes=8)
     saved: list[Checkpoint] = []
-    render_film(scene, spp=16, passes=8, save=saved.append, save_every=0)
+    render_film(scene, spp=16, passes=8, checkpoints=Checkpointing(save=saved.append, every=0))
     assert [c.meta["done"] for c in saved] == list(range(1, 8))
     for checkpoint in (saved[0], saved[4]):
-        resumed = render_film(scene, spp=16, passes=8, resume=checkpoint)
+        resumed = render_film(scene, spp=16, passes=8, checkpoints=Checkpointing(checkpoint))
         assert resumed.image.tobytes() == whole.image.tobytes()
 
 

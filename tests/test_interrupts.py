@@ -13,7 +13,7 @@ import mcrt.cli.reference_cmd as reference_cmd
 import mcrt.cli.render_cmd as render_cmd
 from mcrt.analysis.reference import get_reference
 from mcrt.core import atomic
-from mcrt.core.job import Interrupted
+from mcrt.core.job import Checkpointing, Interrupted
 from mcrt.core.render import render_film, render_stats
 from mcrt.core.sampling import make_sampler
 from mcrt.io import read_exr
@@ -43,7 +43,8 @@ def test_interrupted_render_resumes_bit_identically(name):
     partial, state = stop.value.partial, stop.value.state
     assert partial.spp == 8 and partial.passes == 2 and state.meta["done"] == 2
     assert np.isfinite(partial.image).all()
-    resumed = render_film(scene, make_sampler(name, 16), seed=5, passes=4, resume=state)
+    resumed = render_film(scene, make_sampler(name, 16), seed=5, passes=4,
+                          checkpoints=Checkpointing(state))
     assert resumed.spp == 16 and resumed.passes == 4
     assert resumed.image.tobytes() == whole.image.tobytes()
 
@@ -55,7 +56,7 @@ def whole_and_resumed(scene, name: str):
     with pytest.raises(Interrupted) as stop:
         render_film(scene, make_sampler(name, 16), seed=5, passes=4, on_pass=interrupt_at(2))
     resumed = render_film(scene, make_sampler(name, 16), seed=5, passes=4,
-                          resume=stop.value.state)
+                          checkpoints=Checkpointing(stop.value.state))
     return whole, resumed
 
 
@@ -240,7 +241,7 @@ def test_adaptive_render_resumes_to_the_uninterrupted_result():
     assert state.meta["next_pass"] == 2 and len(stop.value.partial.passes) == 2
     assert np.isfinite(stop.value.partial.image).all()
     resumed = render_adaptive(scene, make_sampler("jittered", 16), settings, seed=3,
-                              resume=state)
+                              checkpoints=Checkpointing(state))
     assert resumed.image.tobytes() == whole.image.tobytes()
     assert np.array_equal(resumed.spp, whole.spp)
     assert [r.samples for r in resumed.passes] == [r.samples for r in whole.passes]

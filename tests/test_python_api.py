@@ -31,7 +31,7 @@ def test_a_python_caller_resumes_a_render_as_mcrt_render_does(tmp_path, monkeypa
     import numpy as np
     import pytest
 
-    from mcrt.core.job import CheckpointStore, Interrupted
+    from mcrt.core.job import Checkpointing, CheckpointStore, Interrupted
     from mcrt.core.render import render_film
     from mcrt.core.render_job import checkpoint_paths, render_key
 
@@ -54,7 +54,7 @@ def test_a_python_caller_resumes_a_render_as_mcrt_render_does(tmp_path, monkeypa
     other = CheckpointStore(checkpoint_paths(tmp_path / "img.exr", key(4)), key(4))
     assert other.load() is None
     resumed = render_film(scene, make_sampler("sobol", 16), seed=3, passes=4,
-                          resume=store.load())
+                          checkpoints=Checkpointing(store.load()))
     whole = render_film(scene, make_sampler("sobol", 16), seed=3, passes=4)
     assert np.array_equal(resumed.image, whole.image)
     store.discard()

@@ -20,6 +20,7 @@ import pytest
 from conftest import CHECKERBOARD, ROOT, TINY_SCENE, run_cli, study_toml
 
 from mcrt.core import atomic
+from mcrt.core.job import Checkpointing
 from mcrt.core.memory import lane_budget
 
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -213,7 +214,8 @@ def test_render_passes_shrink_only_to_fit_memory(monkeypatch):
     state = half.checkpoint
     assert state is not None
     monkeypatch.undo()  # plenty of memory again: the checkpoint's pass size is kept
-    resumed = render_film(scene, make_sampler("jittered", 16), seed=1, resume=state)
+    resumed = render_film(scene, make_sampler("jittered", 16), seed=1,
+                          checkpoints=Checkpointing(state))
     assert resumed.passes == 8
     np.testing.assert_array_equal(resumed.image, half.image)
 

@@ -130,7 +130,7 @@ def test_failure_writing_keeps_the_render(tmp_path, capsys, monkeypatch):
     calls: list = []
 
     def recorded(*args, **kwargs):
-        calls.append(kwargs.get("resume"))
+        calls.append(kwargs["checkpoints"].resume)
         return render_film(*args, **kwargs)
 
     monkeypatch.setattr(render_cmd, "render_film", recorded)

@@ -13,14 +13,14 @@ import argparse
 import functools
 import logging
 from contextlib import nullcontext
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from ..core.atomic import check_free_space, remedy
 from ..core.engine import reseeds_each_pass
 from ..core.executor import cluster_address
-from ..core.job import CheckpointStore, Interrupted
-from ..core.render import FilmRender, render_film
+from ..core.job import Checkpointing, CheckpointStore, Interrupted
+from ..core.render import FilmRender, PassTasks, render_film
 from ..core.render_job import checkpoint_paths, render_key, require_render_memory
 from ..core.sampling import (
     base_seed,
@@ -162,13 +162,14 @@ def run(args: argparse.Namespace) -> int:
     log.info("plan: %s", ", ".join(planned.plan.effects_on))
 
     tasks = _pass_tasks(args, planned, params, overrides, name, sampler, spp) if cluster \
-        else {}
+        else None
     try:
         with _common.cluster_executor(cluster) as executor:
             result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
-                                 passes=passes, on_pass=on_pass, resume=state,
-                                 save=store.save_periodic, save_every=checkpoint_interval(),
-                                 executor=executor, **tasks)
+                                 passes=passes, on_pass=on_pass,
+                                 checkpoints=Checkpointing(state, store.save_periodic,
+                                                           checkpoint_interval()),
+                                 tasks=replace(tasks, executor=executor) if tasks else None)
     except Interrupted as stop:
         target = stop.state.meta["settings"][0] if stop.state is not None else spp
 
@@ -222,8 +223,8 @@ def _render_cluster(args: argparse.Namespace, sampler, adaptive: bool) -> str | 
 
 
 def _pass_tasks(args: argparse.Namespace, planned, params: dict[str, str],
-                overrides: dict[str, bool], name: str, sampler, spp: int) -> dict:
-    """``render_film``'s arguments that make its passes tasks (``--cluster``)."""
+                overrides: dict[str, bool], name: str, sampler, spp: int) -> PassTasks:
+    """The render's passes as tasks (``--cluster``; the executor is added later)."""
     from ..core.scene_files import SceneSource  # only a distributed render ships its scene
     from ..render.loaded import FilmPassTask, film_pass, remember_planned
 
@@ -233,7 +234,7 @@ def _pass_tasks(args: argparse.Namespace, planned, params: dict[str, str],
     task = FilmPassTask(tuple(sorted(params.items())), tuple(sorted(overrides.items())), wrap,
                         name, tuple(sorted(sampler_params_of(sampler).items())), spp,
                         args.seed, base_seed(sampler))
-    return {"pass_task": functools.partial(film_pass, task), "shared": {"scene": source}}
+    return PassTasks(functools.partial(film_pass, task), {"scene": source})
 
 
 def _print_shading_counts(scene) -> None:
@@ -341,9 +342,9 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
 
     try:
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
-                                          on_pass=report, resume=state,
-                                          save=store.save_periodic,
-                                          save_every=checkpoint_interval())
+                                          on_pass=report,
+                                          checkpoints=Checkpointing(state, store.save_periodic,
+                                                                    checkpoint_interval()))
     except Interrupted as stop:
         def write_partial(partial) -> str:
             write(partial, {"partial": 1})

@@ -345,6 +345,21 @@ class CheckpointPacer:
         return True
 
 
+@dataclass(frozen=True)
+class Checkpointing:
+    """How a render keeps its finished work (one option of :func:`~mcrt.core.render.render_film`
+    and :func:`~mcrt.render.adaptive.render_adaptive`): ``resume`` continues from
+    the checkpoint of an interrupted, identical render; ``save(checkpoint)`` (e.g.
+    :meth:`CheckpointStore.save_periodic`) receives the checkpoint of the finished
+    work while it runs, so that even a SIGKILL keeps it: every ``every`` seconds
+    (0: after every pass; None: as often as keeps its cost under 2% of the time,
+    :class:`CheckpointPacer`)."""
+
+    resume: Checkpoint | None = None
+    save: Callable[[Checkpoint], object] | None = None
+    every: float | None = None
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C (or SIGTERM/SIGHUP) during a job: ``partial`` is the result of the
     work finished so far (None if nothing finished), ``done`` of ``total`` units,

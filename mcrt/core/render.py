@@ -16,7 +16,7 @@ import functools
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import drjit as dr
@@ -40,7 +40,7 @@ from .engine import (
     supported_film,
 )
 from .executor import cluster_status
-from .job import Checkpoint, CheckpointPacer, Interrupted, Job, run_job
+from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .progress import Progress
 
@@ -208,14 +208,24 @@ def _run(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator, run: Pa
         bar.close()
 
 
+@dataclass(frozen=True)
+class PassTasks:
+    """A render's passes as the tasks of a job run by ``executor`` (a Dask
+    cluster, say): ``task(index, passes=count, **shared)`` returns the sums of
+    pass ``index`` of ``count`` alone, as :func:`render_film_pass` makes them,
+    wherever it runs; they are added in pass order: the same bits as in-process."""
+
+    task: Callable[..., Any]
+    shared: dict[str, Any] = field(default_factory=dict)
+    executor: Any = None
+
+
 def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
                 seed: int = 0, sensor: int = 0, progress: bool = False,
                 max_lanes: int | None = None, passes: int | None = None,
                 on_pass: Callable[[int, int], None] | None = None,
-                resume: Checkpoint | None = None,
-                save: Callable[[Checkpoint], object] | None = None,
-                save_every: float | None = None, pass_task: Callable[..., Any] | None = None,
-                shared: dict[str, Any] | None = None, executor: Any = None) -> FilmRender:
+                checkpoints: Checkpointing | None = None,
+                tasks: PassTasks | None = None) -> FilmRender:
     """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
 
     Returns the developed film (bit-identical across runs and thread counts),
@@ -223,25 +233,18 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     the per-pixel count of non-finite samples (left out of the image).
     ``max_lanes`` caps the samples of one pass; ``passes`` forces the number of
     passes (it must divide the sample count); ``on_pass(index, count)`` runs
-    before each pass is traced (motion-blur sub-frames). ``resume`` continues
-    from the checkpoint of an interrupted, identical render. ``save(checkpoint)``
-    (e.g. :meth:`~mcrt.core.job.CheckpointStore.save_periodic`) receives the
-    checkpoint of the finished passes while the render runs, so that even a
-    SIGKILL keeps them: every ``save_every`` seconds (0: after every pass), by
-    default as often as keeps its cost under 2% of the render time
-    (:class:`~mcrt.core.job.CheckpointPacer`).
-
-    With ``pass_task`` (``pass_task(index, passes=count, **shared)`` returns the
-    sums of pass ``index`` of ``count`` alone, as :func:`render_film_pass` makes
-    them, wherever it runs),
-    the passes are the tasks of a job run by ``executor`` (a Dask cluster, say)
-    and their sums are added here in pass order: the same bits as in-process.
+    before each pass is traced (motion-blur sub-frames). ``checkpoints``
+    (:class:`~mcrt.core.job.Checkpointing`) resumes an interrupted render and
+    saves the finished passes while it runs; ``tasks`` (:class:`PassTasks`)
+    runs the passes elsewhere.
 
     A render without checkpoints, sub-frames, tasks or a progress bar over several
     passes is recorded the first time its (scene, sampler, pass shape) is rendered
     and replayed afterwards with each new seed (:mod:`mcrt.core.replay`): the same
     bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
     """
+    resume, save, save_every = (checkpoints.resume, checkpoints.save, checkpoints.every) \
+        if checkpoints is not None else (None, None, None)
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
     channels = film.create_block().channel_count()
@@ -288,7 +291,7 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
             on_pass(index, count)
 
     why = replay.why_not(scene, run.shape, progress, checkpoints=save, resume=resume,
-                         subframes=on_pass, tasks=pass_task)
+                         subframes=on_pass, tasks=tasks)
     if why is None and run.done == 0:
         replayed = replay.render(scene, sampler, run.shape, seed, sensor, channels)
         if replayed is not None:  # the same bits as the passes below would give
@@ -298,14 +301,14 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     elif why is not None:
         replay.note(why)
     try:
-        if pass_task is None:
+        if tasks is None:
             _run(scene, sampler, accumulator, run, seed, sensor, progress,
                  before_pass if save is not None else on_pass)
         else:
-            task = functools.partial(pass_task, passes=run.shape.passes)
+            task = functools.partial(tasks.task, passes=run.shape.passes)
             _run_tasks(run, accumulator, Job("film", run.shape.passes, task, _add_sums,
-                                             shared=dict(shared or {})),
-                       executor, progress, pacer if save is not None else None,
+                                             shared=dict(tasks.shared)),
+                       tasks.executor, progress, pacer if save is not None else None,
                        lambda state: save(Checkpoint(  # type: ignore[misc]
                            {"settings": [spp, run.shape.passes, seed], "done": run.done,
                             "seconds": run.seconds}, state)))
@@ -402,5 +405,5 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
                        seconds=time.perf_counter() - start)
 
 
-__all__ = ["FilmRender", "StatsRender", "channel_names", "film_base_channels", "in_film_format",
-           "linear_srgb", "render_film", "render_stats", "srgb_to_xyz_matrix"]
+__all__ = ["FilmRender", "PassTasks", "StatsRender", "channel_names", "film_base_channels",
+           "in_film_format", "linear_srgb", "render_film", "render_stats", "srgb_to_xyz_matrix"]

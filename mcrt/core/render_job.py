@@ -5,8 +5,8 @@ or :func:`~mcrt.render.adaptive.render_adaptive` resume the same way:
 
 >>> key = render_key("scene.xml", {}, {}, "sobol", 64, seed=0, passes=None)  # doctest: +SKIP
 >>> store = CheckpointStore(checkpoint_paths(Path("out/img.exr"), key), key)  # doctest: +SKIP
->>> film = render_film(scene, sampler, resume=store.load(),
-...                    save=store.save_periodic)  # doctest: +SKIP
+>>> film = render_film(scene, sampler, checkpoints=Checkpointing(
+...     store.load(), store.save_periodic))  # doctest: +SKIP
 >>> store.discard()  # once the outputs are written  # doctest: +SKIP
 
 The key is the content of the scene (:func:`~mcrt.core.scene_files.scene_digest`)

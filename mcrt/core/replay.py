@@ -42,6 +42,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
+from .._gc import collection_held_back
 from .accumulators import FilmAccumulator
 from .engine import PassRun, PassShape, run_passes, sampling_integrator
 from .sampling import sampler_fingerprint, sampler_name, sampler_params
@@ -134,8 +135,12 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     start = time.perf_counter()
     try:
         tables: tuple = getattr(sampler, "frozen_inputs", tuple)()
-        image, nonfinite, sums = entry[1](scene, dr.opaque(mi.UInt32, seed), tables)
-        dr.eval(image, nonfinite, sums)
+        # No cyclic collection while Dr.Jit records or replays: a collection there frees
+        # unrelated garbage holding Dr.Jit variables in the middle of the recording,
+        # which aborted the process (seen once in CI, a Mitsuba sampler's render).
+        with collection_held_back():
+            image, nonfinite, sums = entry[1](scene, dr.opaque(mi.UInt32, seed), tables)
+            dr.eval(image, nonfinite, sums)
         dr.sync_thread()
     except RuntimeError as error:  # what cannot be recorded renders unfrozen, from now on
         _ENTRIES.pop(key, None)

@@ -15,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.engine import deferred_interrupts, sampling_integrator, supported_film, trace_pass
-from ...core.job import Checkpoint, CheckpointPacer, Interrupted
+from ...core.job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted
 from ...core.render import in_film_format
 from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats
@@ -46,9 +46,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                     integrator: mi.SamplingIntegrator | None = None,
                     on_pass: Callable[[PassRecord], None] | None = None,
                     on_samples: Callable[..., None] | None = None,
-                    resume: Checkpoint | None = None,
-                    save: Callable[[Checkpoint], object] | None = None,
-                    save_every: float | None = None) -> AdaptiveRender:
+                    checkpoints: Checkpointing | None = None) -> AdaptiveRender:
     """Render ``scene`` adaptively (see :mod:`mcrt.render.adaptive`).
 
     ``sampler`` defaults to the sensor's (its type and parameters are used, not
@@ -61,13 +59,15 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     Ctrl-C raises :class:`~mcrt.core.job.Interrupted` with the passes finished
     so far as ``partial`` (a pass in flight is dropped whole) and the
     :class:`~mcrt.core.job.Checkpoint` to resume from as ``state``;
-    ``resume`` continues from it; ``save(checkpoint)`` receives it while the
-    render runs (``save_every`` as in :func:`~mcrt.core.render.render_film`), so
-    that even a SIGKILL keeps the passes saved (the last pass is always saved:
-    the caller discards it once the result is written). Every wavefront's
+    ``checkpoints`` (:class:`~mcrt.core.job.Checkpointing`) resumes from one and
+    saves them while the render runs, so that even a SIGKILL keeps the passes
+    saved (the last pass is always saved: the caller discards it once the
+    result is written). Every wavefront's
     samples depend only on (seed, pass, pixel), so a resumed render equals an
     uninterrupted one.
     """
+    resume, save, save_every = (checkpoints.resume, checkpoints.save, checkpoints.every) \
+        if checkpoints is not None else (None, None, None)
     sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
     film = supported_film(sensor_obj.film())
