@@ -64,12 +64,11 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..core.atomic import check_free_space, remove_stale_temporaries
-from ..core.executor import cluster_status
+from ..core.executor import Executor, cluster_status
 from ..core.filtered import FilteredStats
 from ..core.job import Interrupted, Job, content_key, run_job
 from ..core.progress import Progress
@@ -189,7 +188,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   seed: int = 0, spp_per_pass: int | None = None,
                   progress: bool = False, *, cache: bool = True,
                   on_pass: Callable[[int, int], None] | None = None,
-                  executor: Any = None,
+                  executor: Executor | None = None,
                   before_work: Callable[[int, int], None] | None = None) -> Reference:
     """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``.
 
@@ -288,7 +287,7 @@ def _setup(scene_path: str | Path, params: dict[str, str] | None, spp: int, samp
 
 def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float, cache: bool,
             progress: bool, on_pass: Callable[[int, int], None] | None,
-            executor: Any) -> Reference:
+            executor: Executor | None) -> Reference:
     """Run the passes ``done ..`` as a job (folded onto ``start``), saving the
     state after each, and return the reference."""
     plan = setup.plan

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import McrtError
 from .atomic import atomic_path, remove_stale_temporaries, special_kind
+from .executor import Executor
 
 log = logging.getLogger("mcrt")
 
@@ -399,7 +400,7 @@ class Job(Generic[R, T]):
     shared: dict[str, Any] = field(default_factory=dict)
 
 
-def run_job(job: Job[R, T], executor: Any = None, done: int = 0, total: T | None = None,
+def run_job(job: Job[R, T], executor: Executor | None = None, done: int = 0, total: T | None = None,
             on_fold: Callable[[int, T], None] | None = None) -> T | None:
     """Run ``job.tasks[done:]`` and fold their results, in task order, into
     ``total`` (the fold of the first ``done`` results). ``on_fold(count, total)``

@@ -39,7 +39,7 @@ from .engine import (
     sampling_integrator,
     supported_film,
 )
-from .executor import cluster_status
+from .executor import Executor, cluster_status
 from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .progress import Progress
@@ -217,7 +217,7 @@ class PassTasks:
 
     task: Callable[..., Any]
     shared: dict[str, Any] = field(default_factory=dict)
-    executor: Any = None
+    executor: Executor | None = None
 
 
 def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
@@ -346,7 +346,8 @@ def _add_sums(total: dict[str, np.ndarray] | None,
     return {name: total[name] + part[name] for name in total}
 
 
-def _run_tasks(run: PassRun, accumulator: FilmAccumulator, job: Job, executor: Any,
+def _run_tasks(run: PassRun, accumulator: FilmAccumulator, job: Job,
+               executor: Executor | None,
                progress: bool, pacer: CheckpointPacer | None,
                save: Callable[[dict[str, np.ndarray]], object]) -> None:
     """Run the passes ``run.done ..`` as the tasks of ``job`` and fold their sums

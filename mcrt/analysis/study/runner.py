@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ... import __version__
-from ...core.executor import cluster_status
+from ...core.executor import Executor, cluster_status
 from ...core.job import Interrupted, Job, run_job
 from ...core.progress import Progress
 from ...core.stats import PixelStats
@@ -144,7 +144,7 @@ def environment() -> dict[str, Any]:
 
 
 def run_study(config: StudyConfig, progress: bool = False,
-              state: StudyState | None = None, executor: Any = None,
+              state: StudyState | None = None, executor: Executor | None = None,
               retime: bool = False) -> StudyResult:
     """Run every cell of a validated study; see :mod:`mcrt.analysis.study` for
     what is measured.
@@ -255,7 +255,7 @@ class _Run:
         self.images: dict[tuple[str, str], CellImages] = {}
         self.renders: dict[tuple[str, str, int], CellRenders] = {}
         #: runs the seeds of a cell (:mod:`mcrt.core.executor`; in-process by default)
-        self.executor: Any = None
+        self.executor: Executor | None = None
         #: time the saved cells again instead of measuring pending ones
         self.retiming = False
         #: this run's name for its tasks (each process warms a cell up once per run)
