@@ -156,3 +156,40 @@ def test_replay_is_faster_than_tracing(monkeypatch):
     _render(monkeypatch, scene, "sobol", 4, 1, False)
     assert calls
     dr.sync_thread()
+
+
+@pytest.mark.slow
+def test_a_study_replayed_equals_the_study_traced(tmp_path, monkeypatch, capsys):
+    """A small study (two samplers, two sample counts, two seeds) with replay on
+    and with MCRT_REPLAY=0: results.json equal in every field but the timings,
+    and every image of the report bit for bit."""
+    import json
+
+    from conftest import CHECKERBOARD, run_cli, study_toml
+
+    from mcrt.io import read_exr
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    config = tmp_path / "s.toml"
+    config.write_text(study_toml(CHECKERBOARD, name="s", params="{ width = 48, height = 32 }"))
+    timed = ("seconds", "efficiency", "time", "environment", "date", "cached")
+
+    def untimed(value):
+        if isinstance(value, dict):
+            return {k: untimed(v) for k, v in value.items() if not any(w in k for w in timed)}
+        return [untimed(v) for v in value] if isinstance(value, list) else value
+
+    results = {}
+    for flag in ("0", "1"):
+        monkeypatch.setenv(replay.ENV, flag)
+        code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", str(tmp_path / flag))
+        assert code == 0, err
+        assert (replay.recordings() > 0) == (flag == "1")  # the study's renders replayed
+        results[flag] = untimed(json.loads((tmp_path / flag / "results.json").read_text()))
+    assert results["0"] == results["1"]
+    images = sorted((tmp_path / "0" / "exr").rglob("*.exr"))
+    assert len(images) == 9  # the reference, and per cell (2 x 2) a mean and a seed
+    for path in images:
+        a = read_exr(path)[0]["rgb"]
+        b = read_exr(tmp_path / "1" / path.relative_to(tmp_path / "0"))[0]["rgb"]
+        assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), path
