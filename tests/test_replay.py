@@ -141,7 +141,8 @@ def test_replay_is_faster_than_tracing(monkeypatch):
     """Not a timing test (benchmarks/replay_cost.py measures): a replay runs no
     Python code of the render, so a sampler that counts its calls is not called."""
     scene = small_cornell(16, box_filter=True)
-    _render(monkeypatch, scene, "sobol", 4, 0, True)
+    _render(monkeypatch, scene, "sobol", 4, 0, True)  # traced (a first render is not recorded)
+    _render(monkeypatch, scene, "sobol", 4, 2, True)  # recorded
     calls = []
     sampler_class = type(make_sampler("sobol", 4))
     original = sampler_class.next_2d

@@ -239,7 +239,7 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     runs the passes elsewhere.
 
     A render without checkpoints, sub-frames, tasks or a progress bar over several
-    passes is recorded the first time its (scene, sampler, pass shape) is rendered
+    passes is recorded the second time its (scene, sampler, pass shape) is rendered
     and replayed afterwards with each new seed (:mod:`mcrt.core.replay`): the same
     bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
     """

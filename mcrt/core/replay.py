@@ -4,10 +4,12 @@ A film render of a scene traces the integrator (Python and C++ building Dr.Jit
 expressions), looks its kernels up in the kernel cache and launches them. For the
 small images of a study, tracing is most of the time. :func:`render` records a
 whole render (every pass, the film's development) with :func:`drjit.freeze` the
-first time a (scene, sampler, pass shape) is rendered, and later renders of it
-with another seed replay the recorded kernels without tracing: the same kernels
-on the same inputs, so the same bits as rendering unfrozen (tested for every
-sampler, filters, AOVs, variants and several passes in tests/test_replay.py).
+second time a (scene, sampler, pass shape) is rendered (a render made once is
+traced as usual: recording it would cost a little and gain nothing), and later
+renders of it with another seed replay the recorded kernels without tracing: the
+same kernels on the same inputs, so the same bits as rendering unfrozen (tested
+for every sampler, filters, AOVs, variants, several passes and a whole study in
+tests/test_replay.py).
 
 A recording is keyed by everything the traced code decides on the host: the
 scene object (kept alive by its entry, so its id is never reused), the sensor,
@@ -84,6 +86,8 @@ class _Recording:
 
 _NOW = _Recording()
 _ENTRIES: OrderedDict[tuple, tuple[mi.Scene, Callable[..., Any]]] = OrderedDict()
+#: Keys rendered once (unfrozen): the second render of a key records it.
+_SEEN: OrderedDict[tuple, None] = OrderedDict()
 _FAILED: dict[tuple, str] = {}
 _NOTED: set[str] = set()
 
@@ -125,6 +129,11 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     key = _key(scene, sampler, shape, sensor, channels)
     if key is None or key in _FAILED:
         return None
+    if key not in _SEEN and key not in _ENTRIES:  # a render made once costs no recording
+        _SEEN[key] = None
+        while len(_SEEN) > 4 * LIMIT:
+            _SEEN.popitem(last=False)
+        return None
     entry = _ENTRIES.get(key)
     if entry is None:
         entry = _ENTRIES[key] = (scene, dr.freeze(_body, warn_after=4))
@@ -163,6 +172,7 @@ def clear() -> None:
     """Drop every recording (and the scenes they keep alive), and forget the
     failures and notes."""
     _ENTRIES.clear()
+    _SEEN.clear()
     _FAILED.clear()
     _NOTED.clear()
 
