@@ -74,13 +74,29 @@ TINY_SCENE = """<scene version="3.0.0">
 
 
 def study_toml(scene: str | Path, name: str | None = None,
-               params: str | None = "{ width = 64, height = 48 }") -> str:
-    """A small valid study: jittered and independent at 4 and 16 spp, 2 seeds,
-    a 64-spp reference, one scene (with ``params`` as its TOML table, if any)."""
+               params: str | None = "{ width = 64, height = 48 }", seeds: int = 2,
+               extra: str = "") -> str:
+    """A small valid study: jittered and independent at 4 and 16 spp, ``seeds``
+    seeds, a 64-spp reference, one scene (with ``params`` as its TOML table, if
+    any); ``extra``: more top-level lines (``time_rounds = 2``, say)."""
     return ("\n" + (f'name = "{name}"\n' if name else "")
-            + 'spp = [4, 16]\nseeds = 2\nsamplers = ["jittered", "independent"]\n'
-            + "[reference]\nspp = 64\n[[scenes]]\n" + f'path = "{scene}"\n'
+            + f'spp = [4, 16]\nseeds = {seeds}\nsamplers = ["jittered", "independent"]\n'
+            + extra + "[reference]\nspp = 64\n[[scenes]]\n" + f'path = "{scene}"\n'
             + (f"params = {params}\n" if params else ""))
+
+
+#: Fields of a study's results that are timings (they differ between any two runs).
+TIMED_FIELDS = ("seconds", "efficiency", "time", "environment", "date", "cached")
+
+
+def untimed(value):
+    """A study's results (JSON, CSV rows, cells) without their timing fields."""
+    if isinstance(value, dict):
+        return {k: untimed(v) for k, v in value.items()
+                if not any(word in k for word in TIMED_FIELDS)}
+    if isinstance(value, list):
+        return [untimed(v) for v in value]
+    return value
 
 
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:

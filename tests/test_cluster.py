@@ -24,6 +24,7 @@ import pytest
 pytest.importorskip("distributed")
 
 import mitsuba as mi  # noqa: E402
+from conftest import study_toml, untimed  # noqa: E402
 
 from mcrt.analysis.reference import get_reference  # noqa: E402
 from mcrt.analysis.study import load_config, run_study  # noqa: E402
@@ -105,39 +106,13 @@ def test_ctrl_c_on_the_client_keeps_the_passes_and_resumes_without_a_cluster(clu
 
 def _tiny_study(tmp_path: Path) -> Path:
     path = tmp_path / "tiny.toml"
-    path.write_text(f"""
-name = "tiny"
-spp = [4, 16]
-seeds = 3
-image_spp = 16
-samplers = ["jittered", "independent"]
-
-[reference]
-spp = 64
-
-[[scenes]]
-path = "{CORNELL}"
-name = "cornell_box"
-params = {{ res = 32 }}
-""")
+    path.write_text(study_toml(CORNELL, name="tiny", params="{ res = 32 }", seeds=3,
+                               extra="image_spp = 16\n"))
     return path
 
 
-#: Result fields that are measured times (or made from them): not part of the bits.
-_TIMED = ("seconds", "efficiency", "time", "environment", "date", "cached")
-
-
-def _untimed(value):
-    if isinstance(value, dict):
-        return {k: _untimed(v) for k, v in value.items()
-                if not any(word in k for word in _TIMED)}
-    if isinstance(value, list):
-        return [_untimed(v) for v in value]
-    return value
-
-
 def _cells(result) -> list:
-    return _untimed([dict(cell) for cell in result.cells])
+    return untimed([dict(cell) for cell in result.cells])
 
 
 def test_a_worker_killed_in_the_middle_of_a_study_changes_nothing(tmp_path, cache):
@@ -299,8 +274,8 @@ def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
     assert there.returncode == 0, there.stderr[-2000:]
     a = json.loads((tmp_path / "here" / "results.json").read_text())
     b = json.loads((tmp_path / "there" / "results.json").read_text())
-    assert _untimed(a) == _untimed(b)
-    rows = [_untimed(list(csv.DictReader((tmp_path / d / "results.csv").open())))
+    assert untimed(a) == untimed(b)
+    rows = [untimed(list(csv.DictReader((tmp_path / d / "results.csv").open())))
             for d in ("here", "there")]
     assert len(rows[0]) == 30 and rows[0] == rows[1]  # 2 scenes x 5 samplers x 3 spp
     untimed_columns = set(rows[0][0])

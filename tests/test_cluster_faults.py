@@ -25,6 +25,8 @@ import pytest
 
 pytest.importorskip("distributed")
 
+from conftest import study_toml, untimed  # noqa: E402
+
 from mcrt.analysis.reference import get_reference  # noqa: E402
 from mcrt.analysis.study import load_config, run_study  # noqa: E402
 from mcrt.core.cluster import DaskExecutor  # noqa: E402
@@ -35,23 +37,10 @@ CORNELL = ROOT / "scenes" / "cornell_box.xml"
 PARAMS = {"res": "24"}
 DASK = Path(sys.executable).parent / "dask"
 
-#: Result fields that are measured times (or made from them): not part of the bits.
-_TIMED = ("seconds", "efficiency", "time", "environment", "date", "cached")
-
-
 @pytest.fixture
 def cache(tmp_path, monkeypatch):
     monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
     return tmp_path / "cache"
-
-
-def _untimed(value):
-    if isinstance(value, dict):
-        return {k: _untimed(v) for k, v in value.items()
-                if not any(word in k for word in _TIMED)}
-    if isinstance(value, list):
-        return [_untimed(v) for v in value]
-    return value
 
 
 def _same_stats(a, b) -> None:
@@ -76,22 +65,8 @@ def _kill(pids: list[int]) -> None:
 def _tiny_study(tmp_path: Path) -> Path:
     """Two jobs (4 and 16 spp) of 2 samplers x 2 rounds (2 seeds) each."""
     path = tmp_path / "tiny.toml"
-    path.write_text(f"""
-name = "tiny"
-spp = [4, 16]
-seeds = 2
-time_rounds = 2
-image_spp = 16
-samplers = ["jittered", "independent"]
-
-[reference]
-spp = 64
-
-[[scenes]]
-path = "{CORNELL}"
-name = "cornell_box"
-params = {{ res = 32 }}
-""")
+    path.write_text(study_toml(CORNELL, name="tiny", params="{ res = 32 }",
+                               extra="time_rounds = 2\nimage_spp = 16\n"))
     return path
 
 
@@ -129,7 +104,7 @@ def test_a_study_survives_all_its_workers_killed_at_once_twice(tmp_path, cache):
         killer.join(timeout=10)
         executor.close()
     assert len(kills) == 2 and all(len(pids) == 2 for pids in kills), kills
-    assert _untimed([dict(c) for c in there.cells]) == _untimed([dict(c) for c in here.cells])
+    assert untimed([dict(c) for c in there.cells]) == untimed([dict(c) for c in here.cells])
 
 
 def test_a_reference_survives_workers_killed_one_after_another(cache):

@@ -243,8 +243,8 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     and replayed afterwards with each new seed (:mod:`mcrt.core.replay`): the same
     bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
     """
-    resume, save, save_every = (checkpoints.resume, checkpoints.save, checkpoints.every) \
-        if checkpoints is not None else (None, None, None)
+    kept = checkpoints or Checkpointing()
+    resume, save, save_every = kept.resume, kept.save, kept.every
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
     channels = film.create_block().channel_count()

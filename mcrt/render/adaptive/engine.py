@@ -66,8 +66,8 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     samples depend only on (seed, pass, pixel), so a resumed render equals an
     uninterrupted one.
     """
-    resume, save, save_every = (checkpoints.resume, checkpoints.save, checkpoints.every) \
-        if checkpoints is not None else (None, None, None)
+    kept = checkpoints or Checkpointing()
+    resume, save, save_every = kept.resume, kept.save, kept.every
     sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
     film = supported_film(sensor_obj.film())
