@@ -1,7 +1,7 @@
 """A large study's report: its size against the float16 EXR of its images, and how fast it opens.
 
 Builds the report of a made-up study without rendering (the StudyResult of
-tests/test_study_plots.py's ``synthetic_result``: smooth made-up scenes plus noise
+tests/analysis/test_study_plots.py's ``synthetic_result``: smooth made-up scenes plus noise
 of each cell's MSE; default 2 scenes of 512x512, 10 samplers, 5 sample counts, 4
 seeds: 100 cells) with :func:`mcrt.analysis.report.write_report`, then prints
 
@@ -11,7 +11,7 @@ seeds: 100 cells) with :func:`mcrt.analysis.report.write_report`, then prints
   FLIP) written as float16 EXR (ZIP, OpenEXR's usual lossless compression; PIZ
   beside it), from the values the viewer shows; goal: at most 1.5x;
 * how long headless Chromium (Debian's chromium and chromium-driver, through
-  Selenium, as tests/test_report_viewer.py) takes, in a new browser each run,
+  Selenium, as tests/analysis/test_report_viewer.py) takes, in a new browser each run,
   from navigating to ``report.html#viewer-0`` to the first image drawn and to
   every image on screen drawn, and from navigating to ``report.html`` to its
   load event (median of ``--runs``); goal: the first image within 2 s.

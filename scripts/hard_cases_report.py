@@ -1,6 +1,6 @@
 """Print the measured figures of the "Hard cases" table of docs/hard-cases.md.
 
-For each case of ``tests/test_hard_cases.py`` (same scenes, settings, seeds
+For each case of ``tests/core/test_hard_cases.py`` (same scenes, settings, seeds
 and references as the tests): the non-finite samples per sampler, the largest
 tile and whole-image |z| against the reference, and the smallest bias the
 agreement test can see (5 standard errors, relative to the mean) per tile

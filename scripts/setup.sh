@@ -414,7 +414,7 @@ verify() {
 }
 
 # ---------------------------------------------------------------------------------------------
-# Headless Chromium + chromedriver (tests/test_report_viewer.py drives the report in it)
+# Headless Chromium + chromedriver (tests/analysis/test_report_viewer.py drives the report in it)
 
 # A Chromium-family browser and a chromedriver on this machine (Debian: /usr/bin/chromium and
 # /usr/bin/chromedriver; GitHub's Ubuntu images: google-chrome and $CHROMEWEBDRIVER).

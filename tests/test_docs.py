@@ -6,7 +6,8 @@ import doctest
 import re
 
 import pytest
-from conftest import ROOT
+
+from tests.conftest import ROOT
 
 DOCS = ROOT / "docs"
 BLOCK = re.compile(r"^```pycon\n(.*?)^```", re.S | re.M)

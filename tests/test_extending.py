@@ -10,9 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import ROOT
-
 from mcrt.samplers import pointset, registry
+from tests.conftest import ROOT
 
 PAGE = (ROOT / "docs" / "extending.md").read_text()
 

@@ -6,7 +6,8 @@ import re
 import sys
 
 import pytest
-from conftest import ROOT
+
+from tests.conftest import ROOT
 
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")

@@ -19,7 +19,6 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 import pytest
-from conftest import ROOT, TINY_SCENE, run_cli
 
 import mcrt
 from mcrt import plugins
@@ -29,6 +28,7 @@ from mcrt.core.sampling import check_sampler_name, make_sampler
 from mcrt.errors import SamplerError
 from mcrt.io import read_exr
 from mcrt.samplers import registry
+from tests.conftest import ROOT, TINY_SCENE, run_cli
 
 #: A plugin serving numpy point sets from a generator (``{name}``: the sampler).
 #: With ``$MCRT_TEST_MARKERS`` set it leaves a file named after its process there.

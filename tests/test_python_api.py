@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from conftest import ROOT
-
 from mcrt.core.sampling import make_sampler
 from mcrt.render.plan import plan_scene
+from tests.conftest import ROOT
 
 MOTION = ROOT / "scenes" / "effects" / "motion.xml"
 

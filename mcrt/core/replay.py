@@ -9,7 +9,7 @@ traced as usual: recording it would cost a little and gain nothing), and later
 renders of it with another seed replay the recorded kernels without tracing: the
 same kernels on the same inputs, so the same bits as rendering unfrozen (tested
 for every sampler, filters, AOVs, variants, several passes and a whole study in
-tests/test_replay.py).
+tests/core/test_replay.py).
 
 A recording is keyed by everything the traced code decides on the host: the
 scene object (kept alive by its entry, so its id is never reused), the sensor,

@@ -99,7 +99,7 @@ def permute(index: mi.UInt32, n: int, key: mi.UInt32, active: Mask = True) -> mi
     pairs (perm(0), perm(1)) is 1.13 at n = 64 and 38 at n = 16 (Kensler's: 5.2
     and 272; 1 is ideal), and of the relation between two dimensions'
     permutations 1.0 and 2.4 (Kensler's 1.0 and 14); see
-    ``tests/test_samplers.py``.
+    ``tests/samplers/test_samplers.py``.
     Other ``n`` use ``mi.permute_kensler`` (it cycle-walks to stay below ``n``).
     """
     if n & (n - 1) or n == 1:

@@ -13,7 +13,7 @@ every aligned block of ``2^m`` consecutive indices is a (0,m,2)-net.
   index bit ``c`` sets output digit ``r`` iff ``binom(c, r)`` is odd, i.e. iff
   the bits of ``r`` are a subset of those of ``c`` (Lucas' theorem). The sum
   over supersets is computed with five xor-shift steps (:func:`sobol_dim1_bits`)
-  instead of a loop over 32 direction numbers; ``tests/test_sobol.py`` checks
+  instead of a loop over 32 direction numbers; ``tests/samplers/test_sobol.py`` checks
   it against the recurrence.
 
 Both generator matrices are upper triangular, so the first ``a`` digits of a

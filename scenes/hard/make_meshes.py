@@ -3,7 +3,7 @@
 Usage: ``python scenes/hard/make_meshes.py [OUTPUT_DIR]`` (default: the
 ``meshes/`` folder next to this script). The files are committed; this script
 documents exactly what they contain and regenerates them byte for byte
-(``tests/test_hard_cases.py`` checks that it does).
+(``tests/core/test_hard_cases.py`` checks that it does).
 
 Every mesh is built on the same unit quad: the square [-1, 1]^2 in the plane
 z = 0, facing +z (counter-clockwise seen from +z), as two triangles. The

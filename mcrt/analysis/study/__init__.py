@@ -108,7 +108,7 @@ from .runner import ReferenceInfo, StudyResult, environment, run_study
 from .store import STATE_DIR, STATE_FORMAT, StudyState, reference_fingerprint, study_key
 from .summary import CellImages, CellRenders, cell_images, cell_renders, fit_sampler, summarise_cell
 
-#: The summariser under its former private name (tests/test_atomic_writes.py builds
+#: The summariser under its former private name (tests/core/test_atomic_writes.py builds
 #: a synthetic result with it).
 _summarise_cell = summarise_cell
 
@@ -116,7 +116,7 @@ _summarise_cell = summarise_cell
 def _fit_sampler(config: StudyConfig, scene: str, sampler: str,
                  cells: list[dict[str, Any]]) -> dict[str, Any]:
     """:func:`fit_sampler` with the former private signature (``config`` unused),
-    for tests/test_atomic_writes.py."""
+    for tests/core/test_atomic_writes.py."""
     return fit_sampler(scene, sampler, cells)
 
 

@@ -44,7 +44,7 @@ Then the plan chooses:
 them on; forcing on an effect the scene does not have is an error, forcing on
 one the plan found negligible keeps it. The plan lists the sample dimensions a
 camera path consumes, in the order Mitsuba's integrators draw them (checked
-against counted ``next_1d``/``next_2d`` calls in ``tests/test_plan.py``).
+against counted ``next_1d``/``next_2d`` calls in ``tests/render/test_plan.py``).
 
 An area light switched off becomes a delta light of the same power
 ``pi L A`` at the centroid of its shape, which is removed from the scene. The

@@ -1,0 +1,249 @@
+"""``mcrt check``: the suite passes good samplers and catches broken ones.
+
+Real samplers, fixed seeds, the quick budget (every shipped sampler also at the
+full one). The broken samplers are made the way a user would make them:
+``register_sampler`` with a point generator (points squeezed into [0, 0.9)^2:
+biased; independent points that claim strata) and Dr.Jit :class:`McrtSampler`
+subclasses that add a fresh Python random number on every call (not
+deterministic), or claim quadrature with biased points in every dimension.
+Samplers that serve only some counts: ``pointset`` files of 64-point sets and
+of 16, 64 and 256-point sets.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import random
+import re
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mcrt
+from mcrt.analysis.check import FULL, QUICK, Subject, run_checks
+from mcrt.analysis.check_claims import EDGE_TOL, check_stratified, one_per_cell
+from mcrt.analysis.check_stats import check_unbiasedness
+from mcrt.samplers import registry
+from mcrt.samplers.kit import hash_extend, unit_float
+from mcrt.samplers.point_sources import jittered_sets
+from tests.conftest import run_cli
+
+
+@pytest.fixture
+def register():
+    """``register(name, **how)``: a user's sampler, unregistered afterwards."""
+    names: list[str] = []
+
+    def add(name: str, **how) -> str:
+        names.append(mcrt.register_sampler(name, **how))
+        return name
+    yield add
+    for name in names:
+        registry.unregister(name)
+
+
+def _rows(out: str) -> dict[str, str]:
+    """Printed table rows by property: their result column."""
+    rows = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) >= 2 and parts[1] in ("pass", "FAIL", "skip"):
+            rows[parts[0]] = parts[1]
+    return rows
+
+
+def test_jittered_passes_and_writes_the_report(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "check", "jittered", "--quick", "-q", "-o", str(tmp_path))
+    assert code == 0, out + err
+    rows = _rows(out)
+    assert set(rows.values()) == {"pass"}
+    assert {"determinism", "range", "clone", "fork", "seeding", "stratified", "unbiasedness",
+            "mse_rate", "discrepancy", "spectrum"} == set(rows)
+    assert "all 10 checks hold" in out
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert data["passed"] and data["sampler"] == "jittered" and data["quick"]
+    assert [c["name"] for c in data["checks"]] == list(rows)
+    rate = next(c for c in data["checks"] if c["name"] == "mse_rate")["values"]
+    assert -1.7 < rate["disk"]["slope"] < -1.3 and -2.2 < rate["gaussian"]["slope"] < -1.8
+    for name in ("points.png", "mse.png", "radial.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+        assert name in (tmp_path / "report.html").read_text()
+
+
+def test_biased_sampler_fails_unbiasedness(capsys, register):
+    register("biased_test", points=lambda c, n, rng: 0.9 * rng.random((c, n, 2)),
+             randomize="none")
+    code, out, _ = run_cli(capsys, "check", "biased_test", "--quick", "-q")
+    assert code == 1
+    rows = _rows(out)
+    assert rows["unbiasedness"] == "FAIL" and rows["determinism"] == "pass"
+    line = next(x for x in out.splitlines() if x.startswith("unbiasedness"))
+    assert "biased: " in line
+    assert re.search(r"disk: bias \+2[2-5]\.", line)  # 1 / 0.81: +23.5% on the disk
+    assert "FAIL: " in out and "unbiasedness" in out.splitlines()[-1]
+
+
+def _nondeterministic_class() -> type:
+    base = importlib.import_module("mcrt.samplers.base").McrtSampler  # the active variant's
+
+    class NonDeterministic(base):  # type: ignore[misc, valid-type]
+        """Adds a fresh Python random number to every value (mod 1): uniform, unbiased,
+        but two instances with the same seed never agree."""
+
+        plugin_name = "nondet_test"
+
+        def _sample_1d(self, key, sample, active=True):
+            v = unit_float(hash_extend(key, sample)) + dr.opaque(mi.Float, random.random())
+            return dr.select(v >= 1.0, v - 1.0, v)
+
+        def _sample_2d(self, key, sample, active=True):
+            return mi.Point2f(self._sample_1d(key, sample, active),
+                              self._sample_1d(hash_extend(key, 0x2D), sample, active))
+    return NonDeterministic
+
+
+def test_nondeterministic_sampler_fails_determinism(capsys, register):
+    register("nondet_test", sampler=_nondeterministic_class())
+    code, out, _ = run_cli(capsys, "check", "nondet_test", "--quick", "-q")
+    assert code == 1
+    rows = _rows(out)
+    assert rows["determinism"] == "FAIL" and rows["range"] == "pass"
+    line = next(x for x in out.splitlines() if x.startswith("determinism"))
+    assert "100% of values differ" in line
+
+
+def test_a_claim_that_does_not_hold_fails(register):
+    """Independent points that claim strata: the stratified row fails, with counts."""
+    register("false_claim_test", points=lambda c, n, rng: rng.random((c, n, 2)),
+             randomize="shift", claims=("stratified",))
+    result = check_stratified(Subject("false_claim_test"), QUICK)
+    assert not result.passed and "not one point per cell" in result.detail
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("quick", [True, False], ids=["quick", "full"])
+@pytest.mark.parametrize("name", registry.names("mcrt"))
+def test_every_shipped_sampler_passes(name, quick):
+    results = run_checks(name, quick=quick)
+    assert all(r.status == "pass" for r in results), [
+        (r.name, r.status, r.detail) for r in results if r.status != "pass"]
+    claims = registry.info(name).claims
+    assert claims <= {r.name for r in results if not r.skipped}  # every claim was checked
+
+
+def test_uniform_grid_reports_its_film_bias_without_failing():
+    """Its film estimate is a fixed quadrature (no sampling error, biased by
+    design, claimed): reported, not tested; the other dimensions are randomly
+    shifted lattices, tested, unbiased, and independent of each other."""
+    result = check_unbiasedness(Subject("uniform_grid"), QUICK)
+    assert result.passed and "film terms (quadrature, biased by design, not tested)" in result.detail
+    assert re.search(r"disk \+49\.\d\d%", result.detail)
+    tested = {k for k, v in result.values.items() if v["tested"]}
+    assert tested == {f"{g} {term}" for g in ("pi", "disk", "gaussian")
+                      for term in ("call 4", "call 3 x 4")}
+    assert result.values["disk"]["relative_bias"] > 0.4 and result.values["disk"]["p"] is None
+
+
+def _biased_quadrature_class() -> type:
+    base = importlib.import_module("mcrt.samplers.base").McrtSampler
+
+    class BiasedQuadrature(base):  # type: ignore[misc, valid-type]
+        """Claims quadrature, but every dimension (film or not) is squeezed into [0, 0.9)."""
+
+        plugin_name = "biased_quadrature_test"
+        claims = frozenset({"quadrature"})
+
+        def _sample_1d(self, key, sample, active=True):
+            return 0.9 * unit_float(hash_extend(key, sample))
+
+        def _sample_2d(self, key, sample, active=True):
+            return mi.Point2f(self._sample_1d(key, sample, active),
+                              self._sample_1d(hash_extend(key, 0x2D), sample, active))
+    return BiasedQuadrature
+
+
+def test_claiming_quadrature_does_not_excuse_the_other_dimensions(capsys, register):
+    register("biased_quadrature_test", sampler=_biased_quadrature_class())
+    code, out, _ = run_cli(capsys, "check", "biased_quadrature_test", "--quick", "-q")
+    assert code == 1
+    rows = _rows(out)
+    assert rows["unbiasedness"] == "FAIL" and rows["quadrature"] == "FAIL"
+    line = next(x for x in out.splitlines() if x.startswith("unbiasedness"))
+    assert re.search(r"disk call 4: bias \+2[2-5]\.", line)  # not a film term, tested
+    assert "film terms (quadrature" in line
+
+
+def _rate_line(out: str) -> str:
+    return next(x for x in out.splitlines() if x.startswith("mse_rate"))
+
+
+def test_a_file_of_64_point_sets_is_checked_at_64(capsys, tmp_path):
+    path = tmp_path / "sets64.npy"
+    np.save(path, jittered_sets(1024, 64, np.random.default_rng(5)).astype(np.float32))
+    assert Subject("pointset", {"filename": str(path)}).served == (64,)
+    assert mi.load_dict({"type": "pointset", "filename": str(path)}).sample_counts() == (64,)
+    code, out, err = run_cli(capsys, "check", "pointset", "-P", f"filename={path}", "-q")
+    assert code == 0, out + err
+    rows = _rows(out)
+    assert rows.pop("mse_rate") == "skip" and set(rows.values()) == {"pass"}
+    assert "serves N = 64: 1 in 16..16384, a rate needs 3" in _rate_line(out)
+    assert "x 64 spp" in next(x for x in out.splitlines() if x.startswith("unbiasedness"))
+    assert "N = 64" in next(x for x in out.splitlines() if x.startswith("discrepancy"))
+    assert "(1 skipped)" in out.splitlines()[-1]
+    code, out, err = run_cli(capsys, "check", "pointset", "-P", f"filename={path}", "--spp",
+                             "16", "-q")
+    assert code == 2 and "pointset serves 64 samples per pixel, not 16" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_a_file_of_three_set_sizes_gets_a_rate_and_takes_spp(capsys, tmp_path):
+    path = tmp_path / "sets.npz"
+    np.savez(path, **{f"n{n}": jittered_sets(1024, n, np.random.default_rng(n)).astype(np.float32)
+                      for n in (16, 64, 256)})
+    code, out, err = run_cli(capsys, "check", "pointset", "-P", f"filename={path}", "--quick",
+                             "-q", "--spp", "64", "-o", str(tmp_path / "report"))
+    assert code == 0, out + err
+    assert set(_rows(out).values()) == {"pass"}
+    assert "N = 16..256" in _rate_line(out)
+    assert "1024 px x 64 spp" in next(x for x in out.splitlines() if x.startswith("unbias"))
+    data = json.loads((tmp_path / "report" / "results.json").read_text())
+    assert data["spp"] == 64 and data["budget"]["contract_spp"] == 64
+
+
+def test_one_per_cell_forgives_rounding_onto_a_border_only():
+    k = 4
+    cells = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)
+    points = (cells + np.random.default_rng(1).random((k * k, 2))) / k
+    assert one_per_cell(points[None], k, k).all()
+    rounded = points.copy()
+    rounded[5] = (cells[5] + 1.0) / k  # u -> 1 rounded up onto the next cells' border
+    assert one_per_cell(rounded[None], k, k).all()
+    assert not one_per_cell(rounded[None], k, k, tol=0.0).all()
+    moved = points.copy()
+    moved[5] = (cells[5] + 1.0 + 4 * EDGE_TOL * k) / k  # really in the next cell
+    assert not one_per_cell(moved[None], k, k).all()
+    assert not one_per_cell(points[None, :-1], k, k).all()  # a point missing
+
+
+@pytest.mark.parametrize("argv, message", [
+    (("nope",), "unknown sampler 'nope'"),
+    (("jittered", "-P", "jitter=2"), "jitter"),
+    (("jittered", "-P", "seed=3"), "--param seed"),
+])
+def test_user_errors_exit_2(capsys, argv, message):
+    code, out, err = run_cli(capsys, "check", *argv, "--quick", "-q")
+    assert code == 2 and message in err and "Traceback" not in err
+
+
+def test_ldsampler_fails_on_products_across_dimensions():
+    """Mitsuba's ldsampler gives every dimension of a pixel the same points,
+    reordered (docs/ldsampler-bias.md): each dimension alone is unbiased, the
+    product of two is not (+4.5% on disk x disk, t ~ 10, at the full budget)."""
+    result = check_unbiasedness(Subject("ldsampler"), FULL)
+    assert not result.passed
+    t = {name: v["t"] for name, v in result.values.items()}
+    assert t["disk x disk"] > 6 and t["gaussian x gaussian"] > 6
+    assert all(abs(value) < 3 for name, value in t.items() if " x " not in name)

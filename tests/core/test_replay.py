@@ -1,0 +1,188 @@
+"""Replayed (frozen) film renders give the bits of unfrozen ones.
+
+Each case renders the same scene with the same sampler and seeds twice, with
+``MCRT_REPLAY=0`` and with replay on, and compares the images (as float32 bit
+patterns), the non-finite counts and the checkpoint sums; :func:`replay.recordings`
+shows whether the replayed side was recorded (traced once, then replayed) or fell
+back to rendering unfrozen, which every case names.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mcrt.core import replay
+from mcrt.core.job import Checkpointing
+from mcrt.core.render import render_film
+from mcrt.core.sampling import make_sampler
+from mcrt.samplers import registry
+from tests.conftest import sampler_params, small_cornell
+
+SEEDS = (0, 1, 7)
+
+
+@pytest.fixture(autouse=True)
+def _fresh():
+    replay.clear()
+    yield
+    replay.clear()
+
+
+def _render(monkeypatch, scene, name: str, spp: int, seed: int, on: bool, **kwargs):
+    monkeypatch.setenv(replay.ENV, "1" if on else "0")
+    params = {k: v for k, v in sampler_params(name, spp).items() if k != "width"}
+    return render_film(scene, make_sampler(name, spp, **params), seed=seed, **kwargs)
+
+
+def _same(a, b) -> None:
+    assert a.image.shape == b.image.shape and a.channels == b.channels
+    assert np.array_equal(a.image.view(np.uint32), b.image.view(np.uint32))
+    assert np.array_equal(a.nonfinite, b.nonfinite)
+    assert (a.spp, a.passes) == (b.spp, b.passes)
+    for name, array in a.checkpoint.arrays.items():
+        assert np.array_equal(array, b.checkpoint.arrays[name]), name
+
+
+def _compare(monkeypatch, scene, name: str, spp: int = 4, **kwargs) -> int:
+    """Render every seed unfrozen and replayed; the recordings made."""
+    for seed in SEEDS:
+        plain = _render(monkeypatch, scene, name, spp, seed, False, **kwargs)
+        again = _render(monkeypatch, scene, name, spp, seed, True, **kwargs)
+        _same(plain, again)
+    return replay.recordings()
+
+
+#: Samplers whose study-sized renders are replayed (recorded once, replayed for the other seeds).
+REPLAYED = ("uniform_grid", "jittered", "poisson_disk", "sobol", "zsobol", "pointset",
+            "independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", registry.names("mcrt") + registry.names("mitsuba"))
+def test_every_sampler_replays_the_bits_of_an_unfrozen_render(monkeypatch, name):
+    scene = small_cornell(16, box_filter=True)
+    recorded = _compare(monkeypatch, scene, name, 16 if name == "orthogonal" else 4)
+    # Traced once (twice where Dr.Jit's dry run of the first recording fails and it
+    # records again, e.g. after the sampler's tables were just loaded): the rest replayed.
+    assert name in REPLAYED and 1 <= recorded < len(SEEDS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["gaussian", "aov", "passes", "xyz"])
+def test_filters_aovs_and_several_passes_replay_the_same_bits(monkeypatch, case):
+    scene = small_cornell(16, box_filter=case != "gaussian")
+    kwargs: dict = {}
+    if case == "aov":
+        d = mi.cornell_box()
+        d["sensor"]["film"].update(width=16, height=16, rfilter={"type": "box"})
+        d["integrator"] = {"type": "aov", "aovs": "dd.y:depth,nn:sh_normal",
+                           "inner": {"type": "path", "max_depth": 3}}
+        scene = mi.load_dict(d)
+    if case == "xyz":
+        d = mi.cornell_box()
+        d["sensor"]["film"].update(width=16, height=16, pixel_format="xyz")
+        scene = mi.load_dict(d)
+    if case == "passes":
+        kwargs["max_lanes"] = 16 * 16 * 4  # 64 spp in 16 passes
+    recorded = _compare(monkeypatch, scene, "sobol", 64 if case == "passes" else 4, **kwargs)
+    assert 1 <= recorded < len(SEEDS)
+
+
+def test_a_scene_edited_between_renders_is_rendered_as_edited(monkeypatch):
+    """A parameter changed with mi.traverse between renders: the replay uses the
+    new value (Dr.Jit sees the change and records again)."""
+    scene = small_cornell(16, box_filter=True)
+    _compare(monkeypatch, scene, "jittered")
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith("reflectance.value"))
+    params[key] = mi.Color3f(0.9, 0.1, 0.1)
+    params.update()
+    before = replay.recordings()
+    _compare(monkeypatch, scene, "jittered")
+    assert replay.recordings() > before
+
+
+def test_what_cannot_be_replayed_renders_unfrozen(monkeypatch, caplog):
+    """Sub-frames (the scene changes between passes), checkpoints and mcrt's
+    host-side multisample integrator: no recording, the same bits, a debug note."""
+    scene = small_cornell(16, box_filter=True)
+    moves: list[int] = []
+    monkeypatch.setattr(logging.getLogger("mcrt"), "propagate", True)  # to caplog's handler
+    with caplog.at_level("DEBUG", logger="mcrt"):
+        _compare(monkeypatch, scene, "jittered", 4, on_pass=lambda i, n: moves.append(i),
+                 passes=2)
+        _compare(monkeypatch, scene, "jittered", 4,
+                 checkpoints=Checkpointing(save=lambda checkpoint: None))
+        d = mi.cornell_box()
+        d["sensor"]["film"].update(width=16, height=16)
+        d["integrator"] = {"type": "multisample", "inner": {"type": "direct"}}
+        _compare(monkeypatch, mi.load_dict(d), "jittered")
+    assert replay.recordings() == 0
+    assert "rendering without replay: the render has subframes" in caplog.text
+    assert "the render has checkpoints" in caplog.text
+    assert "works on the host" in caplog.text
+
+
+def test_a_spectral_render_falls_back_or_replays_with_the_same_bits(monkeypatch):
+    mi.set_variant("llvm_ad_spectral")
+    import mcrt
+
+    mcrt.register()
+    scene = small_cornell(16, box_filter=True)
+    _compare(monkeypatch, scene, "sobol")  # unfrozen today: a spectral table is not an input
+
+
+def test_a_replay_runs_no_python_code_of_the_render(monkeypatch):
+    """A replay launches the recorded kernels only: a sampler method that counts
+    its calls is not called (benchmarks/replay_cost.py measures the time saved)."""
+    scene = small_cornell(16, box_filter=True)
+    _render(monkeypatch, scene, "sobol", 4, 0, True)  # traced (a first render is not recorded)
+    _render(monkeypatch, scene, "sobol", 4, 2, True)  # recorded
+    calls = []
+    sampler_class = type(make_sampler("sobol", 4))
+    original = sampler_class.next_2d
+
+    def counting(self, *args, **kwargs):
+        calls.append(1)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(sampler_class, "next_2d", counting)
+    _render(monkeypatch, scene, "sobol", 4, 1, True)
+    assert calls == []
+    _render(monkeypatch, scene, "sobol", 4, 1, False)
+    assert calls
+    dr.sync_thread()
+
+
+@pytest.mark.slow
+def test_a_study_replayed_equals_the_study_traced(tmp_path, monkeypatch, capsys):
+    """A small study (two samplers, two sample counts, two seeds) with replay on
+    and with MCRT_REPLAY=0: results.json equal in every field but the timings,
+    and every image of the report bit for bit."""
+    import json
+
+    from mcrt.io import read_exr
+    from tests.conftest import CHECKERBOARD, run_cli, study_toml, untimed
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    config = tmp_path / "s.toml"
+    config.write_text(study_toml(CHECKERBOARD, name="s", params="{ width = 48, height = 32 }"))
+    results = {}
+    for flag in ("0", "1"):
+        monkeypatch.setenv(replay.ENV, flag)
+        code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", str(tmp_path / flag))
+        assert code == 0, err
+        assert (replay.recordings() > 0) == (flag == "1")  # the study's renders replayed
+        results[flag] = untimed(json.loads((tmp_path / flag / "results.json").read_text()))
+    assert results["0"] == results["1"]
+    images = sorted((tmp_path / "0" / "exr").rglob("*.exr"))
+    assert len(images) == 9  # the reference, and per cell (2 x 2) a mean and a seed
+    for path in images:
+        a = read_exr(path)[0]["rgb"]
+        b = read_exr(tmp_path / "1" / path.relative_to(tmp_path / "0"))[0]["rgb"]
+        assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), path
