@@ -186,3 +186,34 @@ def test_a_study_replayed_equals_the_study_traced(tmp_path, monkeypatch, capsys)
         a = read_exr(path)[0]["rgb"]
         b = read_exr(tmp_path / "1" / path.relative_to(tmp_path / "0"))[0]["rgb"]
         assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), path
+
+
+@pytest.mark.slow
+def test_a_study_replayed_on_a_dask_worker_equals_the_study_traced_here(tmp_path, monkeypatch,
+                                                                        capsys):
+    """The same small study unfrozen in this process and with replay on a real
+    Dask ``LocalCluster`` worker (``--cluster ADDRESS``): results.json equal but
+    for timings, and the worker did replay (its recordings, read from the worker)."""
+    import json
+
+    from distributed import Client, LocalCluster
+
+    from tests.conftest import CHECKERBOARD, run_cli, study_toml, untimed
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    config = tmp_path / "s.toml"
+    config.write_text(study_toml(CHECKERBOARD, name="s", params="{ width = 48, height = 32 }"))
+    monkeypatch.setenv(replay.ENV, "0")
+    code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", str(tmp_path / "here"))
+    assert code == 0, err
+    monkeypatch.setenv(replay.ENV, "1")  # the worker processes inherit it
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=":0") as cluster, Client(cluster) as client:
+        code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", str(tmp_path / "there"),
+                               "--cluster", cluster.scheduler_address)
+        assert code == 0, err
+        made = client.run(replay.recordings)
+    assert list(made.values()) and all(count > 0 for count in made.values()), made
+    here, there = (json.loads((tmp_path / d / "results.json").read_text())
+                   for d in ("here", "there"))
+    assert untimed(here) == untimed(there)
