@@ -1,7 +1,7 @@
 """A reference's cache files: its running state, saved after every merged pass.
 
 ``<cache>/reference/<key>.partial.npz`` while it renders, ``<key>.npz`` once
-finished (the one :class:`~mcrt.core.job.Checkpoint` format: key and checksum).
+finished (the one :class:`~mcrt.core.state_file.Checkpoint` format: key and checksum).
 :func:`load_state` uses a file only if it is an intact state of that key, in the
 expected role, with every pixel holding exactly the samples of its passes;
 anything else is set aside with a note and recomputed.
@@ -10,7 +10,6 @@ anything else is set aside with a note and recomputed.
 from __future__ import annotations
 
 import contextlib
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -18,13 +17,10 @@ import numpy as np
 
 from ..cache import cache_dir
 from ..core.filtered import SUMS, FilteredStats
-from ..core.job import Checkpoint, set_aside
 from ..core.render import StatsRender
+from ..core.state_file import Checkpoint, Saving, set_aside
 from ..core.stats import PixelStats
-from ..errors import McrtError
 from .pass_plan import PassPlan
-
-log = logging.getLogger("mcrt.reference")
 
 #: Version of the cache files' layout and of the rendering recipe; bump it when
 #: either changes so that stale references are never reused.
@@ -102,24 +98,25 @@ def load_state(path: Path, key: str, plan: PassPlan, shape: tuple[int, int],
 
 
 class StateSaver:
-    """Saves a reference's state after every merged pass (partial, then finished);
-    a write failure is noted once and turns saving off, the reference goes on."""
+    """Saves a reference's state after every merged pass (partial, then finished),
+    under the one failure policy (:class:`~mcrt.core.state_file.Saving`: a failed
+    write is noted once and turns saving off, the reference goes on)."""
 
     def __init__(self, key: str, plan: PassPlan, finished: Path, partial: Path,
                  seconds_before: float, enabled: bool) -> None:
         self.key, self.plan, self.finished, self.partial = key, plan, finished, partial
-        self.seconds_before, self.enabled = seconds_before, enabled
+        self.seconds_before = seconds_before
+        self.saving = Saving("the reference cache", "the reference goes on without it",
+                             on=enabled)
 
     def save(self, count: int, merged: StatsRender) -> None:
-        if not self.enabled:
-            return
         last = count == self.plan.passes
-        try:
+
+        def write() -> None:
             save_state(self.finished if last else self.partial, self.key, merged.stats, count,
                        self.plan.passes, self.seconds_before + merged.seconds, complete=last)
             if last:
                 with contextlib.suppress(OSError):
                     self.partial.unlink()
-        except (McrtError, OSError) as error:
-            log.warning("cannot write the reference cache (%s); continuing without it", error)
-            self.enabled = False
+
+        self.saving(write)

@@ -99,7 +99,7 @@ given numpy (numpy keeps ``Generator`` streams and its FFT stable in practice
 but does not promise it across versions, which is harmless: a cached table
 stays valid; workers of one cluster should run one numpy). :func:`load_tables`
 uses ``seed = TABLE_SEED`` and caches the float32 tables in memory and in
-``<cache>/poisson/v{VERSION}-n{n}-t{T}.npz`` (a :class:`mcrt.core.job.Checkpoint`:
+``<cache>/poisson/v{VERSION}-n{n}-t{T}.npz`` (a :class:`mcrt.core.state_file.Checkpoint`:
 the table's key and a checksum of its content), where ``<cache>`` is
 ``$MCRT_CACHE_DIR`` if set and non-empty, else ``$XDG_CACHE_HOME/mcrt`` or
 ``~/.cache/mcrt``. Bump :data:`VERSION` whenever the output changes, so stale
@@ -107,7 +107,8 @@ files are never reused. Files are written atomically (temporary file in the same
 directory, then ``os.replace``); unreadable, damaged or wrong files (checked:
 key, checksum, shape, dtype, range and spacing) are set aside as ``*.damaged``
 with a note, regenerated and replaced, and an unwritable
-cache directory only means the tables are not stored.
+cache directory only means the tables are not stored (one note, the one failure
+policy of saved state, :class:`mcrt.core.state_file.Saving`).
 
 References
 ==========
@@ -306,32 +307,24 @@ def _valid(tables: object, n: int) -> bool:
 def _read(path: Path, n: int) -> np.ndarray | None:
     """The cached tables at ``path`` if intact (key, checksum) and valid, else
     None; a damaged or invalid file is set aside with a note."""
-    from ..core.job import Checkpoint, set_aside  # lazy: only when tables are cached
+    from ..core.state_file import Checkpoint  # lazy: only when tables are cached
 
-    try:
-        found = Checkpoint.load(path, _key(n))
-    except Exception:  # e.g. the path is a directory
-        return None
-    if found is None:
-        return None
-    tables = found.arrays.get("tables")
-    if not _valid(tables, n):
-        set_aside(path, "not a valid Poisson-disk table")
-        return None
-    return tables
+    found = Checkpoint.load(path, _key(n), valid=lambda c: _valid(c.arrays.get("tables"), n),
+                            invalid="not a valid Poisson-disk table")
+    return None if found is None else found.arrays["tables"]
 
 
 def _write(path: Path, tables: np.ndarray, n: int | None = None) -> bool:
-    """Store ``tables`` atomically (:class:`mcrt.core.job.Checkpoint`); False (and
-    nothing left behind) on any error, ``KeyboardInterrupt`` included."""
-    from ..core.job import Checkpoint
+    """Store ``tables`` atomically (:class:`mcrt.core.state_file.Checkpoint`); a
+    failure (read-only or full disk, ...) is noted under the one failure policy
+    (:class:`mcrt.core.state_file.Saving`) and gives False. Nothing is left behind
+    on any error, ``KeyboardInterrupt`` included (which propagates)."""
+    from ..core.state_file import Checkpoint, Saving
 
     n = tables.shape[1] if n is None else n
-    try:
-        Checkpoint({"n": n}, {"tables": tables}).save(path, _key(n))
-        return True
-    except Exception:  # best effort: read-only or full disk, odd file systems, ...
-        return False
+    saving = Saving(f"the poisson_disk tables for {n} samples per pixel",
+                    "they are kept in memory, for this process only")
+    return saving(lambda: Checkpoint({"n": n}, {"tables": tables}).save(path, _key(n)))
 
 
 def load_tables(n: int, *, disk_cache: bool = True) -> np.ndarray:

@@ -24,7 +24,7 @@ import pytest
 
 import mcrt.analysis.report as report
 import mcrt.analysis.study as study
-import mcrt.core.job as job
+import mcrt.core.state_file as state_file
 from mcrt.core.stats import PixelStats
 from mcrt.errors import McrtError
 from tests.conftest import CHECKERBOARD, study_toml
@@ -44,7 +44,6 @@ def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResu
     ref = rng.random((h, w, 3))
     ref_var = np.full_like(ref, 1e-6)
     floor = float(ref_var.mean())
-    k = len(config.seeds)
     cells, images = [], {}
     for scene, label, spp in study.cell_keys(config)[:done]:
         sampler = next(s for s in config.samplers if s.label == label)
@@ -55,8 +54,8 @@ def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResu
                      "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
                     for s, r in zip(config.seeds, renders, strict=True)]
         stats = PixelStats.from_images(renders)
-        cells.append(study._summarise_cell(scene, sampler, spp, per_seed, stats, ref, ref_var,
-                                           floor, k))
+        cells.append(study.summarise_cell(study.CellScores(scene, sampler, spp, per_seed, stats),
+                                          study.ReferenceImage(ref, ref_var, floor)))
         if spp == config.image_spp:
             images[(scene, label)] = study.CellImages(
                 render=renders[0].astype(np.float32),
@@ -273,7 +272,7 @@ def test_study_state(tmp_path, monkeypatch, error):
     state = study.StudyState(tmp_path / "out" / study.STATE_DIR, "key")
     state.add({"scene": "checkerboard", "sampler": "jittered", "spp_requested": 4}, None, 1.0)
     before = {state.path: state.path.read_bytes()}
-    monkeypatch.setattr(job, "open", dying_open(error, "state.npz"), raising=False)
+    monkeypatch.setattr(state_file, "open", dying_open(error, "state.npz"), raising=False)
     with pytest.raises((KeyboardInterrupt, McrtError)) as raised:
         state.save(2.0)
     _check(state.directory, before, raised, error)

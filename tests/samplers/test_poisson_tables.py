@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mcrt.core import job
+from mcrt.core import state_file
 from mcrt.samplers import poisson_tables as pt
 
 
@@ -308,7 +308,7 @@ def test_failed_write_leaves_nothing_behind(cache, monkeypatch):
     def failing_open(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(job, "open", failing_open, raising=False)
+    monkeypatch.setattr(state_file, "open", failing_open, raising=False)
     tables = pt.load_tables(n)  # still served
     assert tables.shape == (pt.n_tables(n), n, 2)
     assert os.listdir(cache) == []
@@ -379,7 +379,7 @@ def test_corrupt_cache_file_is_regenerated(cache, kind):
 
 def _stored(path, n):
     """The tables in a cache file (checked like the cache does)."""
-    found = job.Checkpoint.load(path, pt._key(n))
+    found = state_file.Checkpoint.load(path, pt._key(n))
     assert found is not None
     return found.arrays["tables"]
 
