@@ -78,8 +78,7 @@ from ..core.scene_files import SceneBundle, SceneSource, scene_digest
 from ..core.stats import PixelStats
 from ..core.trace import film_grid_size
 from ..errors import McrtError, SamplerError
-from ..render.loaded import planned_scene, remember_planned
-from ..render.plan import plan_scene
+from ..render.loaded import planned_scene
 from ..samplers.kit import hash_keys_int
 from .pass_plan import DEFAULT_PASS_SPP, LANE_BUDGET, PassPlan, plan_passes
 from .reference_cache import (
@@ -89,6 +88,8 @@ from .reference_cache import (
     cache_paths,
     load_state,
 )
+from .reference_exr import reference_layers as reference_layers  # its EXR file, named here too
+from .reference_exr import reference_metadata as reference_metadata
 
 log = logging.getLogger("mcrt.reference")
 
@@ -183,6 +184,35 @@ class Reference:
 # --------------------------------------------------------------------------- rendering
 
 
+@dataclass(frozen=True)
+class ReferenceRequest:
+    """Which reference: a scene (its ``$key`` parameters, the CLI's ``-D``) at
+    ``spp`` samples per pixel of ``sampler`` from ``seed``, in passes of
+    ``spp_per_pass`` (None: as many as fit). With the software it is what the
+    reference's bits, and so its cache key, depend on."""
+
+    scene_path: str | Path
+    params: dict[str, str] | None = None
+    spp: int = DEFAULT_REFERENCE_SPP
+    sampler: str = "independent"
+    seed: int = 0
+    spp_per_pass: int | None = None
+
+
+@dataclass(frozen=True)
+class ReferenceHooks:
+    """What a caller sees of a reference being made: a progress bar;
+    ``on_pass(index, passes)`` after pass ``index`` is merged and its state saved
+    (a test hook; raising there interrupts the reference, which the next call
+    resumes); ``before_work(width, height)`` once the scene is planned, before
+    the cache is read or a pass rendered (e.g. the command's own checks: free
+    space for its output)."""
+
+    progress: bool = False
+    on_pass: Callable[[int, int], None] | None = None
+    before_work: Callable[[int, int], None] | None = None
+
+
 def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   spp: int = DEFAULT_REFERENCE_SPP, sampler: str = "independent",
                   seed: int = 0, spp_per_pass: int | None = None,
@@ -190,26 +220,26 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   on_pass: Callable[[int, int], None] | None = None,
                   executor: Executor | None = None,
                   before_work: Callable[[int, int], None] | None = None) -> Reference:
-    """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``.
+    """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``:
+    the :class:`ReferenceRequest` of the arguments before ``progress``, seen
+    through the :class:`ReferenceHooks` ``progress``, ``on_pass``, ``before_work``.
 
     A :class:`~mcrt.core.job.Job` whose tasks are the passes (each a pure
-    function of its index), folded in order with Chan's merge. ``params`` are the
-    scene's ``$key`` parameters (the CLI's ``-D``). ``cache`` False neither reads
-    nor writes the cache. ``on_pass(index, passes)`` runs after pass ``index`` is
-    merged and its state saved (a test hook; raising there interrupts the
-    reference, which the next call resumes). Ctrl-C raises
-    :class:`~mcrt.core.job.Interrupted` with the partial :class:`Reference`.
-    Raises :class:`~mcrt.errors.McrtError` for bad arguments or scenes, before
-    rendering.
+    function of its index), folded in order with Chan's merge, on ``executor``
+    (default: this process). ``cache`` False neither reads nor writes the cache.
+    Ctrl-C raises :class:`~mcrt.core.job.Interrupted` with the partial
+    :class:`Reference`. Raises :class:`~mcrt.errors.McrtError` for bad arguments
+    or scenes, before rendering.
     """
-    setup = _setup(scene_path, params, spp, sampler, seed, spp_per_pass)
+    hooks = ReferenceHooks(progress, on_pass, before_work)
+    setup = _setup(ReferenceRequest(scene_path, params, spp, sampler, seed, spp_per_pass))
     height, width = setup.shape
     if cache:  # room for the partial and the finished state (and a temporary copy)
         remove_stale_temporaries(setup.finished.parent)
         check_free_space(setup.finished.parent, 3 * STATE_BYTES_PER_PIXEL * width * height,
                          "the reference cache files")
-    if before_work is not None:  # e.g. the command's own checks (free space for its output)
-        before_work(width, height)
+    if hooks.before_work is not None:
+        hooks.before_work(width, height)
     start: StatsRender | None = None
     done, seconds = 0, 0.0
     if cache:
@@ -224,7 +254,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
             done, seconds = found[1], found[2]
             log.info("resuming reference %s after pass %d of %d", setup.key, done,
                      setup.plan.passes)
-    return _render(setup, start, done, seconds, cache, progress, on_pass, executor)
+    return _render(setup, start, done, seconds, cache, hooks, executor)
 
 
 @dataclass
@@ -255,20 +285,20 @@ class _Setup:
                          resumed_passes=resumed, plan=self.plan)
 
 
-def _setup(scene_path: str | Path, params: dict[str, str] | None, spp: int, sampler: str,
-           seed: int, spp_per_pass: int | None) -> _Setup:
-    """Check the arguments, plan the scene (kept for this process's tasks) and its
+def _setup(request: ReferenceRequest) -> _Setup:
+    """Check the request, plan the scene (kept for this process's tasks) and its
     passes: every user error surfaces here, before any pass."""
-    params = dict(params or {})
+    scene_path, spp, sampler, seed = request.scene_path, request.spp, request.sampler, request.seed
+    params, spp_per_pass = dict(request.params or {}), request.spp_per_pass
     if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
         raise McrtError(f"a reference needs at least 1 sample per pixel, got {spp!r}")
     if not 0 <= int(seed) < 2 ** 32:
         raise McrtError(f"seed must be in [0, 2^32), got {seed}")
     spp, seed = int(spp), int(seed)
     check_sampler_name(sampler)
-    planned = plan_scene(scene_path, params)  # the scene `mcrt render` renders (motion too)
+    # The scene `mcrt render` renders (motion too), kept for this process's tasks.
+    planned = planned_scene(scene_path, params)
     source = SceneSource.of(scene_path, params)
-    remember_planned(source, params, planned)  # this process's tasks use it
     film = planned.scene.sensors()[0].film()
     grid = film_grid_size(film)
     width, height = int(grid[0]), int(grid[1])
@@ -286,8 +316,7 @@ def _setup(scene_path: str | Path, params: dict[str, str] | None, spp: int, samp
 
 
 def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float, cache: bool,
-            progress: bool, on_pass: Callable[[int, int], None] | None,
-            executor: Executor | None) -> Reference:
+            hooks: ReferenceHooks, executor: Executor | None) -> Reference:
     """Run the passes ``done ..`` as a job (folded onto ``start``), saving the
     state after each, and return the reference."""
     plan = setup.plan
@@ -296,7 +325,7 @@ def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float,
     job = Job(setup.key, plan.passes, functools.partial(reference_pass, task), _merge,
               shared={"scene": setup.source})
     saver = StateSaver(setup.key, plan, setup.finished, setup.partial, seconds, cache)
-    bar = Progress(plan.passes, enabled=progress, desc="reference", initial=done)
+    bar = Progress(plan.passes, enabled=hooks.progress, desc="reference", initial=done)
     before = start.samples if start is not None else 0
 
     def on_fold(count: int, merged: StatsRender) -> None:
@@ -305,8 +334,8 @@ def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float,
             bar.postfix(f"{(merged.samples - before) / merged.seconds / 1e6:.2f} M samples/s"
                         + cluster_status(executor))
         bar.update(1)
-        if on_pass is not None:
-            on_pass(count - 1, plan.passes)
+        if hooks.on_pass is not None:
+            hooks.on_pass(count - 1, plan.passes)
 
     try:
         merged = run_job(job, executor, done=done, total=start, on_fold=on_fold)
@@ -382,61 +411,3 @@ def _merge(merged: StatsRender | None, part: StatsRender) -> StatsRender:
     else:
         raise McrtError("cannot merge box-binned and filtered reference passes")
     return StatsRender(stats, part.spp, part.passes, merged.seconds + part.seconds)
-
-
-# --------------------------------------------------------------------------- output
-
-
-def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
-    """EXR layers of a reference: ``rgb`` (mean), ``variance`` (per-sample),
-    ``stderr`` (of the mean), ``count`` (samples per pixel; float32 in the file,
-    exact up to 2^24 per pixel) and ``nonfinite`` if any sample was NaN/Inf."""
-    layers = {"rgb": ref.mean.astype(np.float32),
-              "variance": ref.variance.astype(np.float32),
-              "stderr": ref.standard_error.astype(np.float32),
-              "count": ref.stats.count.astype(np.float32)}
-    if isinstance(ref.stats, FilteredStats):
-        layers["effective_count"] = ref.stats.effective_count.astype(np.float32)
-    if ref.stats.nonfinite.any():
-        layers["nonfinite"] = ref.stats.nonfinite.astype(np.float32)
-    return layers
-
-
-def reference_metadata(ref: Reference, scene_path: str | Path,
-                       params: dict[str, str] | None) -> dict[str, str | int | float]:
-    """EXR metadata of a reference: how it was made (:mod:`mcrt.core.provenance`:
-    the command that renders it again, scene digest, versions) and its sample
-    totals, exact Python ints (``write_exr`` stores those beyond int32 as decimal
-    strings)."""
-    from ..core.provenance import absolute, command_text, plugin_files, scene_facts, software
-
-    plan = ref.plan
-    params = dict(params or {})
-    words = [absolute(scene_path), "--spp", plan.requested_spp if plan else ref.spp,
-             "--sampler", ref.sampler, "--seed", ref.seed,
-             *(["--spp-per-pass", plan.pass_spp] if plan else []),
-             *[w for k, v in params.items() for w in ("-D", f"{k}={v}")]]
-    return {
-        **software(), "mcrt_kind": "reference",
-        "command": command_text("reference", *words, plugins=plugin_files(ref.sampler)),
-        "scene": str(scene_path), **scene_facts(scene_path, params),
-        "params": " ".join(f"{k}={v}" for k, v in params.items()),
-        **_filter_of(scene_path, params),
-        "sampler": ref.sampler, "seed": ref.seed, "spp": ref.spp,
-        "requested_spp": plan.requested_spp if plan else ref.spp,
-        "passes": ref.passes, "pass_plan": plan.describe() if plan else "",
-        "samples": ref.drawn_samples, "finite_samples": ref.samples,
-        "nonfinite_samples": int(ref.stats.nonfinite.sum()),
-        "max_pixel_count": int(ref.stats.count.max()),
-        "cache_key": ref.key,
-    }
-
-
-def _filter_of(scene_path: str | Path, params: dict[str, str]) -> dict[str, str]:
-    """``filter``: the film's reconstruction filter the reference was developed
-    with (from the scene this process planned; nothing if it cannot be had)."""
-    try:
-        planned = planned_scene(SceneSource.of(scene_path, params), params)
-        return {"filter": str(planned.scene.sensors()[0].film().rfilter())}
-    except Exception:  # a scene gone since: the header says what it can
-        return {}

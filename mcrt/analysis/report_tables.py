@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 from .aliasing import UNMEASURED
 from .study import StudyResult
 from .study.conclude import bias_lines, timing_lines
-from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Field
+from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Cell, Field
 
 
 def fmt(value: Any, digits: int = 3) -> str:
@@ -40,7 +41,7 @@ def fmt(value: Any, digits: int = 3) -> str:
     return html.escape(str(value))
 
 
-def _show(field: Field, record: dict[str, Any]) -> str:
+def _show(field: Field, record: Mapping[str, Any]) -> str:
     """The HTML of ``field``'s column in a table row of ``record`` (a cell or a
     fit), as its :class:`~mcrt.analysis.study.fields.Column` says."""
     assert field.column is not None
@@ -73,7 +74,7 @@ def table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
     return f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table>'
 
 
-def _verdicts(cells: list[dict[str, Any]]) -> str:
+def _verdicts(cells: Sequence[Cell]) -> str:
     """The verdicts of a sampler's cells in words (aliasing, bias)."""
     aliased = [str(c["spp"]) for c in cells if c["aliasing"] == "aliased"]
     blue = [str(c["spp"]) for c in cells if c["aliasing"] == "blue"]
@@ -111,7 +112,7 @@ def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
     return rows
 
 
-def _ratio_cell(cell: dict[str, Any]) -> str:
+def _ratio_cell(cell: Cell) -> str:
     """An efficiency ratio with its interval; 'n.s.' when the interval holds 1."""
     if not cell["resolved"]:
         return "unresolved"

@@ -169,13 +169,8 @@ def _check_space(config, out: Path) -> None:
     references' cache files, before any cell is measured."""
     from ..analysis.reference_cache import STATE_BYTES_PER_PIXEL, cache_paths
     from ..core.atomic import check_free_space
-    from ..core.trace import film_grid_size
-    from ..render.plan import plan_scene
 
-    pixels = []
-    for spec in config.scenes:  # loaded (and checked) already by load_config
-        grid = film_grid_size(plan_scene(spec.path, spec.params).scene.sensors()[0].film())
-        pixels.append(int(grid[0]) * int(grid[1]))
+    pixels = [config.film_pixels[spec.name] for spec in config.scenes]  # by load_config
     samplers = len(config.samplers)
     report = sum(p * (samplers * 3 * 4 * 2 + (samplers + 1) * 4 * 3) for p in pixels)
     # Per cell: the viewer's images in the resume state (7 float32 a pixel), as EXR (7)

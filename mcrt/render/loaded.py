@@ -7,6 +7,11 @@ the first time and returns the same :class:`~mcrt.render.plan.PlannedScene` to
 the job's later tasks, keyed by the scene's content digest and parameters (a
 changed file is a new scene). The few most recent scenes are kept.
 
+It is also the one place a client plans a scene it was given by path (the study's
+checks, its references, its cells and its report's headers all ask it), so a
+study of up to :data:`KEPT` scenes plans each once (with more, a scene the later
+ones pushed out is planned again for its cells, and for the report's headers).
+
 :func:`film_pass` is a pass of ``mcrt render`` as such a task (``--cluster``).
 """
 
@@ -50,11 +55,19 @@ def remember_planned(source: SceneSource, params: dict[str, str] | None,
     _keep(_key(source.path, source.digest, params, overrides, wrap), planned)
 
 
-def planned_scene(scene: SceneSource | SceneBundle, params: dict[str, str] | None = None,
+def planned_scene(scene: SceneSource | SceneBundle | str | Path,
+                  params: dict[str, str] | None = None,
                   overrides: dict[str, bool] | None = None,
                   wrap: str | None = None) -> PlannedScene:
     """The scene planned as ``mcrt render`` plans it (with its ``--effect``
-    overrides and integrator ``wrap``), loaded once per process."""
+    overrides and integrator ``wrap``), loaded once per process. A path is
+    the scene's XML file (its digest read now: an edited file is planned again)."""
+    if isinstance(scene, (str, Path)):
+        given = scene
+        try:
+            scene = SceneSource.of(given, params)
+        except OSError:  # unreadable: the planner says so as it says it for `mcrt render`
+            return plan_scene(given, dict(params or {}), dict(overrides or {}), wrap=wrap)
     path, digest = local_scene(scene)
     key = _key(path, digest, params, overrides, wrap)
     planned = _planned.get(key)

@@ -6,13 +6,17 @@ import csv
 import fnmatch
 import json
 import math
+import types
+import typing
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mcrt.analysis.study import (
+    CellScores,
     ConfigError,
+    ReferenceImage,
     SamplerSpec,
     fit_sampler,
     load_config,
@@ -26,6 +30,7 @@ from mcrt.analysis.study.fields import (
     DEFINITIONS,
     FIT_FIELDS,
     FIT_KEYS,
+    Cell,
     record,
 )
 from mcrt.cli import main
@@ -161,7 +166,7 @@ def test_a_film_under_32_pixels_is_studied_without_an_aliasing_score(tmp_path, c
 # --------------------------------------------------------------------------- declared fields
 
 
-def _synthetic_cell(spp: int, seeds: int = 2) -> dict:
+def _synthetic_cell(spp: int, seeds: int = 2) -> Cell:
     """A cell summarised by the study's own code from synthetic renders."""
     rng = np.random.default_rng(spp)
     ref = rng.random((32, 32, 3))
@@ -172,8 +177,9 @@ def _synthetic_cell(spp: int, seeds: int = 2) -> dict:
                  "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
                 for s, r in enumerate(renders)]
     sampler = SamplerSpec("jittered", "jittered", {})
-    return summarise_cell("scene", sampler, spp, per_seed, PixelStats.from_images(renders),
-                          ref, np.full_like(ref, 1e-8), 1e-8, seeds)
+    return summarise_cell(CellScores("scene", sampler, spp, per_seed,
+                                     PixelStats.from_images(renders)),
+                          ReferenceImage(ref, np.full_like(ref, 1e-8), 1e-8))
 
 
 def test_cell_and_fit_fields_are_declared_once():
@@ -183,6 +189,15 @@ def test_cell_and_fit_fields_are_declared_once():
 
     cells = [_synthetic_cell(spp) for spp in (4, 16)]
     assert all(tuple(c) == CELL_KEYS for c in cells)
+    assert tuple(Cell.__annotations__) == CELL_KEYS  # the type the consumers are checked on
+    assert Cell.__required_keys__ == frozenset(CELL_KEYS)
+    # Each value has the type the declaration says (the per-seed records: dicts).
+    hints = typing.get_type_hints(Cell)
+    for key, value in cells[0].items():
+        expected = typing.get_origin(hints[key]) or hints[key]
+        if expected in (typing.Union, types.UnionType):
+            expected = tuple(typing.get_origin(t) or t for t in typing.get_args(hints[key]))
+        assert isinstance(value, expected) or (expected is float and isinstance(value, int)), key
     assert tuple(fit_sampler("scene", "jittered", cells)) == FIT_KEYS
     with pytest.raises(ValueError, match="undeclared"):
         record(CELL_FIELDS, {**cells[0], "new_metric": 1.0})
@@ -391,3 +406,17 @@ def test_a_biased_sampler_is_named_where_people_look(tmp_path, monkeypatch, caps
     assert "<b>Bias found.</b>" in html and "ldsampler is biased on glossy_bias" in html
     assert "<b>biased</b> at 16, 64, 256 spp" in html  # the summary table's verdict
     assert "sobol is biased" not in html and "independent is biased" not in html
+
+
+def test_a_study_plans_each_scene_once(tmp_path, monkeypatch):
+    """The checks, the references, the cells and the report's headers share one
+    plan of each scene (:func:`mcrt.render.loaded.planned_scene`)."""
+    from tests.render.test_loaded import count_plans
+
+    second = f'[[scenes]]\nname = "small"\npath = "{CHECKERBOARD}"\n' \
+             'params = { width = 32, height = 24 }\n'
+    config = _config(tmp_path, study_toml(CHECKERBOARD) + second)
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    counts = count_plans(monkeypatch)
+    assert main(["-q", "compare", str(config), "-o", str(tmp_path / "out")]) == 0
+    assert counts == {str(CHECKERBOARD): 2}  # two scenes: one plan each

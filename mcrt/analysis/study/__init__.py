@@ -103,18 +103,23 @@ from .config import (
     load_config,
     parse_config,
 )
-from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, Column, Field
+from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, Cell, Column, Field
 from .runner import ReferenceInfo, StudyResult, environment, run_study
 from .store import STATE_DIR, STATE_FORMAT, StudyState, reference_fingerprint, study_key
-from .summary import CellImages, CellRenders, cell_images, cell_renders, fit_sampler, summarise_cell
-
-#: The summariser under its former private name (tests/core/test_atomic_writes.py builds
-#: a synthetic result with it).
-_summarise_cell = summarise_cell
+from .summary import (
+    CellImages,
+    CellRenders,
+    CellScores,
+    ReferenceImage,
+    cell_images,
+    cell_renders,
+    fit_sampler,
+    summarise_cell,
+)
 
 
 def _fit_sampler(config: StudyConfig, scene: str, sampler: str,
-                 cells: list[dict[str, Any]]) -> dict[str, Any]:
+                 cells: list[Cell]) -> dict[str, Any]:
     """:func:`fit_sampler` with the former private signature (``config`` unused),
     for tests/core/test_atomic_writes.py."""
     return fit_sampler(scene, sampler, cells)
@@ -122,8 +127,9 @@ def _fit_sampler(config: StudyConfig, scene: str, sampler: str,
 
 __all__ = ["CELL_FIELDS", "FIT_FIELDS", "MAX_NAME_BYTES", "MIN_REFERENCE_FACTOR",
            "RESOLVED_FACTOR", "STATE_DIR", "STATE_FORMAT", "STUDY_NULL_DRAWS", "WARMUP_SEED",
-           "CellImages", "CellRenders", "Column", "ConfigError", "Field", "ReferenceInfo",
-           "ReferenceSpec", "SamplerSpec", "SceneSpec", "StudyConfig",
+           "Cell", "CellImages", "CellRenders", "CellScores", "Column", "ConfigError", "Field",
+           "ReferenceImage", "ReferenceInfo", "ReferenceSpec", "SamplerSpec", "SceneSpec",
+           "StudyConfig",
            "StudyResult", "StudyState", "cell_images", "cell_keys", "cell_renders",
            "check_config", "environment", "fit_sampler", "load_config", "parse_config",
            "reference_fingerprint", "run_study", "study_key", "summarise_cell"]

@@ -14,9 +14,9 @@ log = logging.getLogger("mcrt.compare")
 
 def check_config(config: StudyConfig) -> None:
     """Load every scene and make every sampler, raising a one-line error on the
-    first failure; fills ``config.effective_spp``."""
+    first failure; fills ``config.effective_spp`` and ``config.film_pixels``."""
     for spec in config.scenes:
-        _check_scene(spec)
+        config.film_pixels[spec.name] = _check_scene(spec)
     _check_samplers(config)
     if config.reference.sampler != "independent":
         log.warning("reference sampler %s: its per-sample standard error overestimates the "
@@ -29,13 +29,16 @@ def check_config(config: StudyConfig) -> None:
             log.info("%s rounds sample counts: %s", sampler.label, ", ".join(changed))
 
 
-def _check_scene(spec: SceneSpec) -> None:
-    """The scene loads, mcrt can drive its integrator, its film suits the study."""
+def _check_scene(spec: SceneSpec) -> int:
+    """The scene loads, mcrt can drive its integrator, its film suits the study;
+    the pixels of its film's grid. Planned as the run will plan it, and kept for
+    it (:func:`~mcrt.render.loaded.planned_scene`)."""
     from ...core.render import film_base_channels
-    from ...render.plan import plan_scene
+    from ...core.trace import film_grid_size
+    from ...render.loaded import planned_scene
 
-    try:
-        scene = plan_scene(spec.path, spec.params).scene  # refuses integrators mcrt cannot drive
+    try:  # refuses integrators mcrt cannot drive
+        scene = planned_scene(spec.path, spec.params).scene
     except McrtError as error:
         raise ConfigError(f"scene {spec.name!r}: {error}") from None
     film = scene.sensors()[0].film()  # any filter: references develop with the film's own
@@ -49,6 +52,8 @@ def _check_scene(spec: SceneSpec) -> None:
         log.info("scene %r renders %dx%d pixels: its cells get no aliasing score (n/a; the "
                  "measure needs %dx%d), the errors are measured as usual", spec.name, width,
                  height, MIN_SIZE, MIN_SIZE)
+    grid = film_grid_size(film)
+    return int(grid[0]) * int(grid[1])
 
 
 def _check_samplers(config: StudyConfig) -> None:

@@ -20,19 +20,20 @@ retimed study derives them afresh):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 from ...core.timing import LOADED_SHARE
 from ..convergence import efficiency_ratio, excess_mse, paired_time_ratio
 from ..significance import holm, two_sided_p
-from .fields import CELL_FIELDS, record
+from .fields import Cell, cell_record
 
 #: Family-wise false-alarm rate of the study's bias flags.
 BIAS_ALPHA = 0.05
 
 
-def conclude(cells: list[dict[str, Any]], fits: list[dict[str, Any]], baseline: str,
-             pixels: dict[str, int]) -> list[dict[str, Any]]:
+def conclude(cells: Sequence[Cell], fits: list[dict[str, Any]], baseline: str,
+             pixels: dict[str, int]) -> list[Cell]:
     """The cells with their study-wide fields filled (new records, same order);
     ``pixels``: each scene's film pixels (for the per-sample efficiency)."""
     flags = holm([two_sided_p(c["bias_z"], c["bias_df"]) for c in cells], BIAS_ALPHA)
@@ -40,21 +41,22 @@ def conclude(cells: list[dict[str, Any]], fits: list[dict[str, Any]], baseline: 
     cost = {(f["scene"], f["sampler"]): f["seconds_per_sample"] for f in fits}
     out = []
     for cell, biased in zip(cells, flags, strict=True):
-        values = {**cell, "biased": bool(biased), "verdict": _verdict(cell, bool(biased))}
+        values: dict[str, Any] = {**cell, "biased": bool(biased),
+                                  "verdict": _verdict(cell, bool(biased))}
         values.update(_ratio(cell, base.get((cell["scene"], cell["spp_requested"]))))
         per_sample = cost.get((cell["scene"], cell["sampler"]), math.nan)
         product = cell["mse_excess"] * per_sample * pixels.get(cell["scene"], 0) * cell["spp"]
         values["efficiency_samples"] = (1.0 / product if cell["resolved"] and product > 0
                                         else math.nan)
-        out.append(record(CELL_FIELDS, values))
+        out.append(cell_record(values))
     return out
 
 
-def _verdict(cell: dict[str, Any], biased: bool) -> str:
+def _verdict(cell: Cell, biased: bool) -> str:
     return f"{cell['aliasing']}; biased" if biased else str(cell["aliasing"])
 
 
-def _ratio(cell: dict[str, Any], base: dict[str, Any] | None) -> dict[str, float]:
+def _ratio(cell: Cell, base: Cell | None) -> dict[str, float]:
     nan = math.nan
     if base is None or not (cell["resolved"] and base["resolved"]):
         return {"efficiency_ratio": nan, "efficiency_ratio_low": nan,
@@ -71,7 +73,7 @@ def _ratio(cell: dict[str, Any], base: dict[str, Any] | None) -> dict[str, float
             "efficiency_ratio_high": high}
 
 
-def timing_verdict(cells: list[dict[str, Any]], environment: dict[str, Any]) -> dict[str, Any]:
+def timing_verdict(cells: Sequence[Cell], environment: dict[str, Any]) -> dict[str, Any]:
     """Whether the study's times can be trusted: the cells whose timing was
     doubtful (``time_problems``), the share of timed renders that started with
     other processes runnable, and the machine's load before and after."""
@@ -107,10 +109,10 @@ def interval_text(value: float, low: float, high: float, spec: str = ".3g") -> s
     return f"{_g(value, spec)} [{_g(low, spec)}, {_g(high, spec)}]"
 
 
-def bias_lines(cells: list[dict[str, Any]]) -> list[str]:
+def bias_lines(cells: Sequence[Cell]) -> list[str]:
     """One line per (scene, sampler) with biased cells: where, how much, how sure."""
     measured = sum(1 for c in cells if math.isfinite(two_sided_p(c["bias_z"], c["bias_df"])))
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    groups: dict[tuple[str, str], list[Cell]] = {}
     for c in cells:
         if c["biased"]:
             groups.setdefault((c["scene"], c["sampler"]), []).append(c)
@@ -145,7 +147,7 @@ def timing_lines(timing: dict[str, Any], retime: str = "") -> list[str]:
     return lines
 
 
-def ratio_sentence(cell: dict[str, Any], baseline: str) -> str:
+def ratio_sentence(cell: Cell, baseline: str) -> str:
     """"X needs 0.62x [0.55, 0.70] of B's time for the same error at N spp"."""
     value = cell["efficiency_ratio"]
     low, high = cell["efficiency_ratio_low"], cell["efficiency_ratio_high"]

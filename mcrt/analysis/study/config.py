@@ -108,6 +108,8 @@ class StudyConfig:
     time_rounds: int = 0
     #: effective sample count of every (sampler label, requested spp), filled by validation
     effective_spp: dict[tuple[str, int], int] = field(default_factory=dict)
+    #: pixels of every scene's film grid (by scene name), filled by validation
+    film_pixels: dict[str, int] = field(default_factory=dict)
     #: the user's sampler plugins (``plugins = [...]``, resolved), loaded by :func:`parse_config`
     plugins: tuple[Path, ...] = ()
 

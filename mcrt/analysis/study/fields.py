@@ -24,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict, cast
 
 import numpy as np
 
@@ -249,6 +249,69 @@ def record(fields: tuple[Field, ...], values: Mapping[str, Any]) -> dict[str, An
         raise ValueError(f"record does not match its declared fields: missing {missing}, "
                          f"undeclared {extra}")
     return {k: plain(values[k]) for k in keys}
+
+
+class Cell(TypedDict):
+    """One (scene, sampler, spp) cell of a study as :func:`cell_record` makes it and
+    results.json and the resume state hold it: the keys of :data:`CELL_FIELDS`
+    that are in results.json, in their order (a test checks that the two agree).
+    A seed's record in ``per_seed`` is :func:`~.seeds.score_seed`'s dict."""
+
+    scene: str
+    filter: str
+    sampler: str
+    plugin: str
+    params: dict[str, Any]
+    spp_requested: int
+    spp: int
+    seeds: list[int]
+    seconds: float
+    seconds_low: float
+    seconds_high: float
+    seconds_sd: float
+    seconds_min: float
+    cpu_seconds: float
+    times: list[float]
+    cpu_times: list[float]
+    time_others: list[int | None]
+    time_problems: str
+    mse: float
+    mse_sd: float
+    mse_floor: float
+    mse_excess: float
+    mse_of_mean: float
+    resolved: bool
+    rel_mse: float
+    rel_mse_sd: float
+    efficiency: float
+    efficiency_low: float
+    efficiency_high: float
+    efficiency_ratio: float
+    efficiency_ratio_low: float
+    efficiency_ratio_high: float
+    efficiency_samples: float
+    variance: float
+    bias: float
+    bias_low: float
+    bias_high: float
+    bias_z: float
+    bias_df: float
+    biased: bool
+    delta_e: float
+    delta_e_sd: float
+    aliasing_ratio: float
+    aliasing_ratio_z: float
+    aliasing_peak: float
+    aliasing_peak_z: float
+    aliasing: str
+    verdict: str
+    nonfinite: int
+    per_seed: list[dict[str, Any]]
+
+
+def cell_record(values: Mapping[str, Any]) -> Cell:
+    """``values`` as a :class:`Cell` (:func:`record` of :data:`CELL_FIELDS`)."""
+    return cast(Cell, record(CELL_FIELDS, values))
 
 
 #: Keys of every cell a study produces (results.json, the resume state).

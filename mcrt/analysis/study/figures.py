@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from . import StudyResult
+    from .fields import Cell
 
 
 #: Offsets (points) tried in turn for a point's spp label on a time plot: near
@@ -210,7 +211,7 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
         if not cells:  # a partial study: nothing measured yet
             continue
         colour = colours[label]
-        x = np.array([c[axis] for c in cells], float)
+        x = np.array([c["spp"] if axis == "spp" else c["seconds"] for c in cells], float)
         y = np.array([c["mse_excess"] for c in cells], float)
         se = np.array([c["mse_sd"] for c in cells], float) / math.sqrt(k)
         ok = np.array([bool(c["resolved"]) for c in cells]) & (y > 0)
@@ -393,7 +394,7 @@ def summary_figure(result: StudyResult, scene: str | None = None,
     return fig
 
 
-def _verdict_z(cell: dict[str, Any]) -> str:
+def _verdict_z(cell: Cell) -> str:
     """A cell's aliasing verdict with its (ratio / peak) z-scores, when it has them."""
     ratio_z, peak_z = cell["aliasing_ratio_z"], cell["aliasing_peak_z"]
     if not (math.isfinite(ratio_z) and math.isfinite(peak_z)):

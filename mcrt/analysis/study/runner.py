@@ -30,11 +30,14 @@ from ..metrics import REL_MSE_EPSILON, reference_noise_floor
 from .checks import check_config
 from .conclude import conclude, timing_verdict
 from .config import SamplerSpec, SceneSpec, StudyConfig, cell_keys
+from .fields import Cell
 from .seeds import SeedRender, SeedTask, collect, render_seed
 from .store import StudyState, reference_fingerprint
 from .summary import (
     CellImages,
     CellRenders,
+    CellScores,
+    ReferenceImage,
     cell_images,
     cell_renders,
     fit_sampler,
@@ -70,7 +73,7 @@ class StudyResult:
 
     config: StudyConfig
     references: dict[str, ReferenceInfo]
-    cells: list[dict[str, Any]]
+    cells: list[Cell]
     fits: list[dict[str, Any]]
     reference_images: dict[str, np.ndarray]
     images: dict[tuple[str, str], CellImages]
@@ -90,7 +93,7 @@ class StudyResult:
     timing: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def biased(self) -> list[dict[str, Any]]:
+    def biased(self) -> list[Cell]:
         """The cells whose bias is significant (Holm-corrected over the study)."""
         return [c for c in self.cells if c["biased"]]
 
@@ -117,7 +120,7 @@ class StudyResult:
                 "pending": [{"scene": a, "sampler": b, "spp": c} for a, b, c in self.pending()],
                 "resume": self.resume_command if self.partial else None}
 
-    def cell(self, scene: str, sampler: str, spp: int) -> dict[str, Any]:
+    def cell(self, scene: str, sampler: str, spp: int) -> Cell:
         for c in self.cells:
             if (c["scene"], c["sampler"], c["spp_requested"]) == (scene, sampler, spp):
                 return c
@@ -193,15 +196,6 @@ def _warn_if_busy(facts: dict[str, Any]) -> None:
 # --------------------------------------------------------------------------- the steps
 
 
-@dataclass
-class _Reference:
-    """A scene's reference as every render is measured against it."""
-
-    mean: np.ndarray             # (H, W, 3) float64
-    var: np.ndarray              # its per-pixel variance (squared standard error)
-    floor: float                 # mean of ``var``: what it adds to every MSE
-
-
 class _Scene:
     """Renders one scene as ``mcrt render`` does (planned once, when first needed)."""
 
@@ -220,20 +214,19 @@ class _Scene:
         return self._correlation
 
     def planned(self) -> PlannedScene:
-        from ...render.plan import plan_scene
+        """Planned as the study's checks planned it (this process's one plan of it)."""
+        from ...render.loaded import planned_scene
 
         if self._planned is None:
-            self._planned = plan_scene(self.spec.path, self.spec.params)
+            self._planned = planned_scene(self.source(), self.spec.params)
         return self._planned
 
     def source(self) -> SceneSource:
-        """The scene as its seed tasks receive it (planned here already)."""
+        """The scene as its seed tasks receive it."""
         from ...core.scene_files import SceneSource
-        from ...render.loaded import remember_planned
 
         if self._source is None:
             self._source = SceneSource.of(self.spec.path, self.spec.params)
-            remember_planned(self._source, self.spec.params, self.planned())
         return self._source
 
 
@@ -251,7 +244,7 @@ class _Run:
             self.env["resumed"] = True
         self.references: dict[str, ReferenceInfo] = {}
         self.reference_images: dict[str, np.ndarray] = {}
-        self.cells: list[dict[str, Any]] = []
+        self.cells: list[Cell] = []
         self.images: dict[tuple[str, str], CellImages] = {}
         self.renders: dict[tuple[str, str, int], CellRenders] = {}
         #: runs the seeds of a cell (:mod:`mcrt.core.executor`; in-process by default)
@@ -298,7 +291,7 @@ class _Run:
             if group:
                 self.measure(scene, group, ref)
 
-    def reference(self, spec: SceneSpec) -> _Reference:
+    def reference(self, spec: SceneSpec) -> ReferenceImage:
         """Render (or take from the cache) the reference of a scene and record it."""
         from ..reference import get_reference  # looked up now: tests replace it
 
@@ -325,7 +318,7 @@ class _Run:
         self.reference_images[spec.name] = mean
         if self.state is not None:
             self.state.check_reference(spec.name, reference_fingerprint(mean, se))
-        return _Reference(mean=mean, var=var, floor=floor)
+        return ReferenceImage(mean=mean, var=var, floor=floor)
 
     def resume(self, scene: str, label: str, spp: int) -> bool:
         """Take the cell from the saved state, if it is there (with its images
@@ -351,7 +344,7 @@ class _Run:
         return True
 
     def measure(self, scene: _Scene, cells: tuple[tuple[SamplerSpec, int], ...],
-                ref: _Reference) -> None:
+                ref: ReferenceImage) -> None:
         """Render one group of a scene's cells (every pending sampler at one spp):
         each cell's warm-up, then :attr:`StudyConfig.rounds` rounds that render
         every cell once in a shuffled order (the seeds' renders first, scored,
@@ -404,11 +397,10 @@ class _Run:
         if self.state is not None:
             self.state.add(cell, None, self.seconds())
 
-    def record(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: _Reference,
+    def record(self, scene: _Scene, sampler: SamplerSpec, spp: int, ref: ReferenceImage,
                rendered: list[SeedRender]) -> None:
         """Score a cell's seeds, summarise the cell and record it (and save it)."""
-        name, k = scene.spec.name, len(self.config.seeds)
-        correlation = scene.pixel_correlation()
+        name, correlation = scene.spec.name, scene.pixel_correlation()
         scored = [r for r in rendered if r.values is not None]
         per_seed = [r.values for r in scored if r.values is not None]
         for values in per_seed:
@@ -417,10 +409,10 @@ class _Run:
                             sampler.label, spp, values["seed"], values["nonfinite"])
         renders = [np.asarray(r.rgb, dtype=np.float64) for r in scored]
         stats = PixelStats.from_images(renders)
-        cell = summarise_cell(name, sampler, spp, per_seed, stats, ref.mean, ref.var,
-                              ref.floor, k, rfilter=scene.spec.rfilter,
-                              variance_factor=variance_factor(correlation),
-                              times=[r.time for r in rendered])
+        cell = summarise_cell(CellScores(name, sampler, spp, per_seed, stats,
+                                         rfilter=scene.spec.rfilter,
+                                         variance_factor=variance_factor(correlation),
+                                         times=[r.time for r in rendered]), ref)
         images = None
         if spp == self.config.image_spp:
             images = self.images[(name, sampler.label)] = cell_images(renders, stats, ref.mean)

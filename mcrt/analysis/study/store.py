@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import json
 import logging
 import os
 import shlex
@@ -38,12 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from ...core.job import CHECKPOINT_FORMAT, Checkpoint, content_key
+from ...core.job import content_key
 from ...core.sampling import sampler_fingerprint
 from ...core.scene_files import scene_digest
+from ...core.state_file import Checkpoint, Saving, peek
 from ...errors import McrtError
 from .config import StudyConfig, cell_keys
-from .fields import plain
+from .fields import Cell, plain
 from .summary import CellImages, CellRenders
 
 log = logging.getLogger("mcrt.compare")
@@ -110,7 +110,7 @@ class StudyState:
     fingerprints and every finished cell with its per-seed values) and one
     ``images_*.npz`` per (scene, sampler) with the report's images and one
     ``renders_*.npz`` per cell with its viewer images, each a
-    :class:`~mcrt.core.job.Checkpoint` (key and checksum checked on load; a
+    :class:`~mcrt.core.state_file.Checkpoint` (key and checksum checked on load; a
     damaged file is set aside and its cells measured again). The images are
     written before the state that refers to them, so a kill at any moment leaves
     a consistent state. ``state.npz`` records ``command``, the command line that
@@ -124,16 +124,22 @@ class StudyState:
         self.directory = Path(directory)
         self.key = key
         self.command = command
-        self.cells: dict[tuple[str, str, int], dict[str, Any]] = {}
+        self.cells: dict[tuple[str, str, int], Cell] = {}
         self.references: dict[str, str] = {}
         self.seconds = 0.0
         self.runs = 0
-        self.writable = True
+        self.saving = Saving("the resume state", "the study goes on, but an interruption will "
+                             "lose the cells not saved")
         self._unlock: weakref.finalize | None = None
 
     @property
     def path(self) -> Path:
         return self.directory / "state.npz"
+
+    @property
+    def writable(self) -> bool:
+        """Whether saving is still on (a failed write turns it off, :class:`Saving`)."""
+        return self.saving.on
 
     @classmethod
     def open(cls, report_dir: str | os.PathLike[str], config: StudyConfig,
@@ -271,15 +277,15 @@ class StudyState:
                 del self.cells[key]
         self.references[scene] = fingerprint
 
-    def add(self, cell: dict[str, Any], images: CellImages | None, seconds: float,
+    def add(self, cell: Cell, images: CellImages | None, seconds: float,
             renders: CellRenders | None = None) -> None:
-        """Record a finished cell (and its images) and save; a write failure
-        (disk full, ...) is logged once and turns saving off, the study goes on."""
+        """Record a finished cell (and its images) and save, under the one failure
+        policy (:class:`~mcrt.core.state_file.Saving`): a write failure (disk full,
+        ...) is noted once and turns saving off, the study goes on."""
         key = (cell["scene"], cell["sampler"], cell["spp_requested"])
         self.cells[key] = plain(cell)
-        if not self.writable:
-            return
-        try:
+
+        def write() -> None:
             if images is not None:
                 Checkpoint({"scene": cell["scene"], "sampler": cell["sampler"]},
                            {"render": images.render, "error": images.error, "std": images.std}
@@ -292,10 +298,8 @@ class StudyState:
                            ).save(self._renders_path(cell["scene"], cell["sampler"],
                                                      cell["spp_requested"]), self.key)
             self.save(seconds)
-        except (McrtError, OSError) as error:
-            log.warning("cannot save the resume state (%s); the study goes on, but an "
-                        "interruption will lose the cells not saved", error)
-            self.writable = False
+
+        self.saving(write)
 
     def save(self, seconds: float) -> None:
         """Write ``state.npz`` atomically (``seconds``: study time so far, all runs)."""
@@ -317,15 +321,10 @@ class StudyState:
 def _saved(path: Path) -> dict[str, Any] | None:
     """Key, command line and cell count of the intact-looking state file ``path``;
     None if it is missing or unreadable (:meth:`Checkpoint.load` reports those)."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            header = json.loads(str(data["header"]))
-            meta = json.loads(str(data["meta"]))
-    except Exception:  # missing, a directory, damaged
+    found = peek(path)
+    if found is None or not isinstance(found[0].get("key"), str):
         return None
-    if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT \
-            or not isinstance(header.get("key"), str):
-        return None
+    header, meta = found
     cells = meta.get("cells") if isinstance(meta, dict) else None
     return {"key": header["key"], "job": str(header.get("job") or ""),
             "cells": len(cells) if isinstance(cells, list) else 0}

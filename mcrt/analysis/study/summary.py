@@ -1,14 +1,14 @@
 """What a study makes of its renders: a cell's summary over seeds, its images, the fits.
 
-A cell is a dict of the fields declared in :data:`~.fields.CELL_FIELDS`
-(built by :func:`summarise_cell`), a fit one of :data:`~.fields.FIT_FIELDS`
-(:func:`fit_sampler`).
+A cell is a :class:`~.fields.Cell`, the fields declared in
+:data:`~.fields.CELL_FIELDS` (built by :func:`summarise_cell`), a fit a dict of
+:data:`~.fields.FIT_FIELDS` (:func:`fit_sampler`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +21,7 @@ from ..convergence import NONE, efficiency_estimate, excess_mse, fit_loglog, typ
 from ..metrics import bias, error_map, mse, variance_map
 from ..significance import t_quantile
 from .config import SamplerSpec
-from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, record
+from .fields import FIT_FIELDS, RESOLVED_FACTOR, Cell, cell_record, record
 
 
 @dataclass
@@ -67,19 +67,40 @@ def _verdict(ratio_z: float, peak_z: float) -> str:
     return "blue" if ratio_z < -Z_THRESHOLD else "noise"
 
 
-def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[dict[str, Any]],
-                   stats: PixelStats, ref_mean: np.ndarray, ref_var: np.ndarray,
-                   floor: float, k: int, rfilter: str = "",
-                   variance_factor: float = 1.0,
-                   times: Sequence[Sample] | None = None) -> dict[str, Any]:
-    """The cell of (scene, sampler, spp) from its per-seed records and the pixel
-    moments of its ``k`` renders, against a reference (mean, variance, noise floor);
-    ``rfilter``: the film filter of a ``filters`` study ("" otherwise);
-    ``variance_factor``: what the film's filter multiplies the variance of a mean
-    over pixels by (:func:`mcrt.analysis.filter_noise.variance_factor`; 1: box);
-    ``times``: every timed render of the cell in round order (default: the
-    seeds' own renders). The study-wide fields (ratios to the baseline, the bias
-    flag, the verdict) are filled by :func:`~.conclude.conclude`."""
+@dataclass(frozen=True)
+class ReferenceImage:
+    """A scene's reference as every render of the study is measured against it."""
+
+    mean: np.ndarray             # (H, W, 3) float64
+    var: np.ndarray              # its per-pixel variance (squared standard error)
+    floor: float                 # mean of ``var``: what it adds to every MSE
+
+
+@dataclass(frozen=True)
+class CellScores:
+    """What one (scene, sampler, spp) cell's renders gave: its scored seeds'
+    records (:func:`~.seeds.score_seed`) and their renders' pixel moments."""
+
+    scene: str
+    sampler: SamplerSpec
+    spp: int                         # requested
+    per_seed: list[dict[str, Any]]
+    stats: PixelStats
+    #: the film filter of a ``filters`` study ("" otherwise)
+    rfilter: str = ""
+    #: what the film's filter multiplies the variance of a mean over pixels by
+    #: (:func:`mcrt.analysis.filter_noise.variance_factor`; 1: box)
+    variance_factor: float = 1.0
+    #: every timed render of the cell in round order (None: the seeds' own renders)
+    times: Sequence[Sample] | None = None
+
+
+def summarise_cell(scores: CellScores, ref: ReferenceImage) -> Cell:
+    """The cell of ``scores`` against its scene's reference ``ref``. The
+    study-wide fields (ratios to the baseline, the bias flag, the verdict) are
+    filled by :func:`~.conclude.conclude`."""
+    per_seed, stats, times = scores.per_seed, scores.stats, scores.times
+    floor, sampler = ref.floor, scores.sampler
     if times is None:
         times = [Sample(r["seconds"], r.get("cpu_seconds", math.nan)) for r in per_seed]
     mse_mean, mse_sd = _mean_sd([r["mse"] for r in per_seed])
@@ -87,15 +108,15 @@ def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[di
     de_mean, de_sd = _mean_sd([r["delta_e"] for r in per_seed])
     excess = mse_mean - floor
     resolved = bool(mse_mean > RESOLVED_FACTOR * floor)
-    b = _bias(per_seed, ref_mean, ref_var, variance_factor)
+    b = _bias(per_seed, ref.mean, ref.var, scores.variance_factor)
     ratio_z, peak_z = _mean(per_seed, "ratio_z"), _mean(per_seed, "peak_z")
     nan = math.nan
     values = {
-        "scene": scene, "filter": rfilter, "sampler": sampler.label, "plugin": sampler.name,
-        "params": dict(sampler.params), "spp_requested": spp,
+        "scene": scores.scene, "filter": scores.rfilter, "sampler": sampler.label,
+        "plugin": sampler.name, "params": dict(sampler.params), "spp_requested": scores.spp,
         "spp": int(per_seed[0]["spp"]), "seeds": [r["seed"] for r in per_seed],
         "mse": mse_mean, "mse_sd": mse_sd, "mse_floor": floor, "mse_excess": excess,
-        "mse_of_mean": mse(stats.mean, ref_mean),
+        "mse_of_mean": mse(stats.mean, ref.mean),
         "resolved": resolved,
         "rel_mse": rel_mean, "rel_mse_sd": rel_sd,
         "efficiency_ratio": nan, "efficiency_ratio_low": nan, "efficiency_ratio_high": nan,
@@ -111,7 +132,7 @@ def summarise_cell(scene: str, sampler: SamplerSpec, spp: int, per_seed: list[di
         "nonfinite": int(sum(r["nonfinite"] for r in per_seed)),
         "per_seed": per_seed,
     }
-    return record(CELL_FIELDS, {**values, **_time_fields(values, times)})
+    return cell_record({**values, **_time_fields(values, times)})
 
 
 @dataclass(frozen=True)
@@ -156,13 +177,13 @@ def _bias(per_seed: list[dict[str, Any]], ref_mean: np.ndarray, ref_var: np.ndar
     return _Bias(value, value / se, df, value - half, value + half)
 
 
-def retime_cell(cell: dict[str, Any], times: Sequence[Sample]) -> dict[str, Any]:
+def retime_cell(cell: Cell, times: Sequence[Sample]) -> Cell:
     """``cell`` with the times of other timed renders (``mcrt compare --retime``):
     its errors are kept, its time and efficiency fields made anew."""
-    return record(CELL_FIELDS, {**cell, **_time_fields(cell, times)})
+    return cell_record({**cell, **_time_fields(cell, times)})
 
 
-def _time_fields(cell: dict[str, Any], times: Sequence[Sample]) -> dict[str, Any]:
+def _time_fields(cell: Mapping[str, Any], times: Sequence[Sample]) -> dict[str, Any]:
     """The time fields of a cell from its timed renders (:mod:`mcrt.core.timing`:
     median, robust spread, 95% interval, CPU time, what disturbed them) and its
     efficiency with a 95% interval (:func:`~mcrt.analysis.convergence.efficiency_estimate`)."""
@@ -192,7 +213,7 @@ def cell_images(renders: list[np.ndarray], stats: PixelStats,
                       std=np.sqrt(variance_map(stats.variance)).astype(np.float32))
 
 
-def fit_sampler(scene: str, sampler: str, cells: list[dict[str, Any]],
+def fit_sampler(scene: str, sampler: str, cells: Sequence[Cell],
                 pixels: int = 0) -> dict[str, Any]:
     """Log-log slopes of the excess MSE vs spp and vs seconds over the resolved
     cells' per-seed values (NaN unless at least two sample counts are resolved:
@@ -202,7 +223,9 @@ def fit_sampler(scene: str, sampler: str, cells: list[dict[str, Any]],
     over every timed render of every cell; ``pixels``: the film's, 0 to skip)."""
     mine = [c for c in cells if c["scene"] == scene and c["sampler"] == sampler]
     used = [c for c in mine if c["resolved"]]
-    x_spp, x_sec, y = [], [], []
+    x_spp: list[float] = []
+    x_sec: list[float] = []
+    y: list[float] = []
     for c in used:
         for r in c["per_seed"]:
             x_spp.append(c["spp"])

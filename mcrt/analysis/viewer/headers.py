@@ -95,12 +95,12 @@ def _cached_reference(result: StudyResult, spec: SceneSpec) -> Reference | None:
     rendering: None if it is not there (or is not the study's, bit for bit)."""
     # _setup plans the scene and derives the cache key as get_reference does; the
     # report must not render, so the finished state is looked up, never made.
-    from ..reference import _setup
+    from ..reference import ReferenceRequest, _setup
     from ..reference_cache import load_state
 
     config = result.config.reference
-    setup = _setup(spec.path, spec.params, config.spp, config.sampler, config.seed,
-                   config.spp_per_pass)
+    setup = _setup(ReferenceRequest(spec.path, spec.params, config.spp, config.sampler,
+                                    config.seed, config.spp_per_pass))
     found = load_state(setup.finished, setup.key, setup.plan, setup.shape, complete=True,
                        filtered=setup.filtered)
     if found is None:
@@ -113,7 +113,7 @@ def _cached_reference(result: StudyResult, spec: SceneSpec) -> Reference | None:
 def describe_scene(result: StudyResult, spec: SceneSpec) -> SceneRecord:
     """The scene's facts for the headers (scene file, digest, filter, plan) and
     its cached reference; what cannot be had is left out and said why."""
-    from ...core.scene_files import SceneSource, scene_digest
+    from ...core.scene_files import scene_digest
     from ...render.loaded import planned_scene
 
     header: Header = {"scene": spec.name, "scene_path": str(spec.path),
@@ -131,7 +131,7 @@ def describe_scene(result: StudyResult, spec: SceneSpec) -> SceneRecord:
     except Exception as error:
         record.reference_note = f"the reference cache could not be read: {error}"
     try:
-        planned = planned_scene(SceneSource.of(spec.path, spec.params), dict(spec.params))
+        planned = planned_scene(spec.path, dict(spec.params))
         header["filter"] = str(planned.scene.sensors()[0].film().rfilter())
         plan = planned.plan.to_dict()
         header["plan"] = _json({k: v for k, v in plan.items() if k not in _PLAN_OMITTED})
@@ -187,7 +187,7 @@ def _cli_value(value: Any) -> str:
 def reference_file(result: StudyResult, record: SceneRecord
                    ) -> tuple[dict[str, np.ndarray], Header]:
     """The reference's layers and its part of the header (with :func:`study_header`'s)."""
-    from ..reference import reference_layers, reference_metadata
+    from ..reference_exr import reference_layers, reference_metadata
 
     config = result.config.reference
     info = result.references[record.scene]

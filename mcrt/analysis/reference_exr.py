@@ -1,0 +1,71 @@
+"""What a reference's EXR file holds (``mcrt reference``, a study's report): its
+layers (mean, variance, standard error, sample counts) and its header (how it
+was made: :mod:`mcrt.core.provenance`, its sample totals, the film's filter)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..core.filtered import FilteredStats
+from ..render.loaded import planned_scene
+
+if TYPE_CHECKING:
+    from .reference import Reference
+
+
+def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
+    """EXR layers of a reference: ``rgb`` (mean), ``variance`` (per-sample),
+    ``stderr`` (of the mean), ``count`` (samples per pixel; float32 in the file,
+    exact up to 2^24 per pixel) and ``nonfinite`` if any sample was NaN/Inf."""
+    layers = {"rgb": ref.mean.astype(np.float32),
+              "variance": ref.variance.astype(np.float32),
+              "stderr": ref.standard_error.astype(np.float32),
+              "count": ref.stats.count.astype(np.float32)}
+    if isinstance(ref.stats, FilteredStats):
+        layers["effective_count"] = ref.stats.effective_count.astype(np.float32)
+    if ref.stats.nonfinite.any():
+        layers["nonfinite"] = ref.stats.nonfinite.astype(np.float32)
+    return layers
+
+
+def reference_metadata(ref: Reference, scene_path: str | Path,
+                       params: dict[str, str] | None) -> dict[str, str | int | float]:
+    """EXR metadata of a reference: how it was made (:mod:`mcrt.core.provenance`:
+    the command that renders it again, scene digest, versions) and its sample
+    totals, exact Python ints (``write_exr`` stores those beyond int32 as decimal
+    strings)."""
+    from ..core.provenance import absolute, command_text, plugin_files, scene_facts, software
+
+    plan = ref.plan
+    params = dict(params or {})
+    words = [absolute(scene_path), "--spp", plan.requested_spp if plan else ref.spp,
+             "--sampler", ref.sampler, "--seed", ref.seed,
+             *(["--spp-per-pass", plan.pass_spp] if plan else []),
+             *[w for k, v in params.items() for w in ("-D", f"{k}={v}")]]
+    return {
+        **software(), "mcrt_kind": "reference",
+        "command": command_text("reference", *words, plugins=plugin_files(ref.sampler)),
+        "scene": str(scene_path), **scene_facts(scene_path, params),
+        "params": " ".join(f"{k}={v}" for k, v in params.items()),
+        **_filter_of(scene_path, params),
+        "sampler": ref.sampler, "seed": ref.seed, "spp": ref.spp,
+        "requested_spp": plan.requested_spp if plan else ref.spp,
+        "passes": ref.passes, "pass_plan": plan.describe() if plan else "",
+        "samples": ref.drawn_samples, "finite_samples": ref.samples,
+        "nonfinite_samples": int(ref.stats.nonfinite.sum()),
+        "max_pixel_count": int(ref.stats.count.max()),
+        "cache_key": ref.key,
+    }
+
+
+def _filter_of(scene_path: str | Path, params: dict[str, str]) -> dict[str, str]:
+    """``filter``: the film's reconstruction filter the reference was developed
+    with (from the scene this process planned; nothing if it cannot be had)."""
+    try:
+        planned = planned_scene(scene_path, params)
+        return {"filter": str(planned.scene.sensors()[0].film().rfilter())}
+    except Exception:  # a scene gone since: the header says what it can
+        return {}
