@@ -5,7 +5,7 @@
 #   python -m pytest -q [extra args...]      e.g. bash scripts/test.sh -x -k sampler
 # `--fast` first: the everyday tier, -m "not slow" -n 2 (no end-to-end or long tests, two
 # workers; about a minute on 2 cores). Without arguments (CI): every test, the ones not marked
-# slow on two workers, then the slow ones in one process.
+# serial on two workers, then the serial ones (conftest.py's SERIAL_MODULES) in one process.
 # A lint, type or layer error fails the run before any test starts.
 # CI runs exactly this script (.ci/run).
 set -euo pipefail
@@ -33,11 +33,12 @@ if [[ "${1:-}" == "--fast" ]]; then  # the everyday tier, on two pytest workers
     shift
     set -- -m "not slow" -n 2 "$@"
 elif (( $# == 0 )); then
-    # The whole suite (CI): the tests not marked slow on two workers, then the slow ones
-    # (end-to-end runs of whole programs, which time, kill and cap processes) one at a time.
-    log "running: python -m pytest -q -m 'not slow' -n 2"
-    "$MCRT_VENV/bin/python" -m pytest -q -m "not slow" -n 2
-    set -- -m slow
+    # The whole suite (CI): every test not marked serial on two workers (work stealing
+    # balances the long ones), then the serial ones (which kill processes and cluster
+    # workers at moments they pick, or cap memory) one at a time.
+    log "running: python -m pytest -q -m 'not serial' -n 2 --dist worksteal"
+    "$MCRT_VENV/bin/python" -m pytest -q -m "not serial" -n 2 --dist worksteal
+    set -- -m serial
 fi
 log "running: python -m pytest -q $*"
 exec "$MCRT_VENV/bin/python" -m pytest -q "$@"

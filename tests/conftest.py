@@ -28,10 +28,19 @@ END_TO_END_MODULES = frozenset({
     "test_fuzz_cli", "test_compare", "test_compare_resume", "test_study_state"})
 
 
+#: End-to-end modules whose tests kill processes or cluster workers at moments they pick, or cap
+#: a process's memory: marked ``serial`` too, and CI runs them one at a time after the rest
+#: (``bash scripts/test.sh``), so that no other test competes with them for the 2 cores.
+SERIAL_MODULES = frozenset({"test_cluster", "test_cluster_faults", "test_kill_and_resume",
+                            "test_resource_limits"})
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.path.stem in END_TO_END_MODULES:
             item.add_marker(pytest.mark.slow)
+        if item.path.stem in SERIAL_MODULES:
+            item.add_marker(pytest.mark.serial)
 
 
 #: Every sampler plugin mcrt ships, from the one registry: the contract tests run on each.
