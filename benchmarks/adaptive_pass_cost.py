@@ -11,12 +11,18 @@ times after a warm-up and reports, per render:
   kernels per pass (whole-array copies, e.g. a scatter into an array that a
   pending gather still reads).
 
-    python benchmarks/adaptive_pass_cost.py [--renders 6]
+``--replay both`` renders each seed traced (``MCRT_REPLAY=0``: every wavefront
+traced) and replayed (:mod:`mcrt.render.adaptive.frozen`), interleaved, in
+alternating order, and fits each side on its own; ``on`` / ``off``: one side only
+(``on``, the default, is what a render does).
+
+    python benchmarks/adaptive_pass_cost.py [--renders 6] [--replay on|off|both]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -26,6 +32,7 @@ import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
 
+from mcrt.core import replay  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
 from mcrt.render.adaptive import AdaptiveSettings, pass_time_fit, render_adaptive  # noqa: E402
 from mcrt.render.adaptive.sums import PixelSums  # noqa: E402
@@ -37,7 +44,11 @@ SCENE = Path(__file__).resolve().parents[1] / "scenes" / "edges.xml"
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--renders", type=int, default=6)
+    parser.add_argument("--replay", choices=["on", "off", "both"], default="on",
+                        help="replayed wavefronts, traced ones (MCRT_REPLAY=0), or both "
+                             "interleaved (default: on)")
     args = parser.parse_args()
+    sides = ["off", "on"] if args.replay == "both" else [args.replay]
     scene = load_scene(SCENE, {})
     settings = AdaptiveSettings()
     commit_seconds: list[float] = []
@@ -51,26 +62,44 @@ def main() -> None:
         commit_seconds.append(time.perf_counter() - start)
 
     PixelSums.commit = timed_commit  # type: ignore[method-assign]
-    render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings, seed=0)
-    rows = []
+    for side in sides:  # warm-ups (the replayed side records its wavefronts)
+        os.environ[replay.ENV] = "1" if side == "on" else "0"
+        for _ in range(2):
+            render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings, seed=0)
+    rows: dict[str, list] = {side: [] for side in sides}
     for seed in range(1, args.renders + 1):
-        commit_seconds.clear()
-        dr.set_flag(dr.JitFlag.KernelHistory, True)
-        dr.kernel_history()  # start empty
-        dr.sync_thread()
-        start = time.perf_counter()
-        result = render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
-                                 seed=seed)
-        dr.sync_thread()
-        wall = time.perf_counter() - start
-        history = dr.kernel_history()
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-        kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
-        copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
-        rows.append((wall, len(result.passes), kernels, sum(commit_seconds), copies, result))
-    fit = pass_time_fit([p for *_, r in rows for p in r.passes])
+        for side in sides if seed % 2 else sides[::-1]:
+            os.environ[replay.ENV] = "1" if side == "on" else "0"
+            rows[side].append(_render(scene, settings, seed, commit_seconds))
     print(f"scenes/edges.xml, sobol, default settings, {args.renders} renders after a warm-up, "
           f"Dr.Jit threads: {dr.thread_count()}")
+    for side in sides:
+        _report(f"wavefronts replayed ({replay.ENV}=1)" if side == "on"
+                else f"wavefronts traced ({replay.ENV}=0)", rows[side])
+
+
+def _render(scene, settings, seed: int, commit_seconds: list[float]) -> tuple:
+    """One timed render: (wall, passes, kernel seconds, commit seconds, Memcpy kernels,
+    result)."""
+    commit_seconds.clear()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # start empty
+    dr.sync_thread()
+    start = time.perf_counter()
+    result = render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
+                             seed=seed)
+    dr.sync_thread()
+    wall = time.perf_counter() - start
+    history = dr.kernel_history()
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
+    copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
+    return wall, len(result.passes), kernels, sum(commit_seconds), copies, result
+
+
+def _report(title: str, rows: list) -> None:
+    fit = pass_time_fit([p for *_, r in rows for p in r.passes])
+    print(f"\n{title}:\n")
     print("| render | wall [s] | passes | kernel execution [s] | commit [ms] | Memcpy per pass |")
     print("|---:|---:|---:|---:|---:|---:|")
     for i, (wall, passes, kernels, commit_s, copies, _) in enumerate(rows):

@@ -334,6 +334,8 @@ def test_special_files_at_a_render_s_paths_are_refused_up_front(tmp_path, capsys
 
     monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(engine, "trace_pass", lambda *a, **k: pytest.fail("rendered"))
+    monkeypatch.setattr("mcrt.render.adaptive.wavefront.trace_pass",
+                        lambda *a, **k: pytest.fail("rendered"))
     scene = _tiny(tmp_path)
     stem = "ada" if where.startswith((".ada", "ada")) else "img"
     extra = ["--adaptive", "--spp", "16"] if stem == "ada" else ["--spp", "4"]

@@ -109,7 +109,7 @@ def test_failed_output_write_keeps_the_render(tmp_path, cache, capsys, monkeypat
     real = engine.trace_pass
     patch_trace = lambda *a, **k: (traced.append(1), real(*a, **k))[1]  # noqa: E731
     monkeypatch.setattr(engine, "trace_pass", patch_trace)
-    monkeypatch.setattr("mcrt.render.adaptive.engine.trace_pass", patch_trace)
+    monkeypatch.setattr("mcrt.render.adaptive.wavefront.trace_pass", patch_trace)
     code, _, err = run_cli(capsys, "-q", *args)
     assert code == 0 and traced == [], err  # written without rendering again
 

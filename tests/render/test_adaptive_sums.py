@@ -119,6 +119,26 @@ def test_a_reduced_wavefront_changes_nothing_until_committed():
     assert all(np.array_equal(before[k], after[k]) for k in before)
 
 
+@pytest.mark.parametrize("s, channels", [(4, 3), (9, 4)])
+def test_a_first_wavefront_of_every_pixel_gives_the_bits_of_split_ones(s, channels):
+    """A first pass of every pixel in one wavefront (its sums become the grid,
+    interleaved without additions) and the same samples in two wavefronts
+    (added to the zero grid) give the same bits, and so do the passes after."""
+    rng = np.random.default_rng(3)
+    ids, m, half = np.arange(PIXELS), 4, PIXELS // 2
+    values, cell = _wavefront(rng, ids, m, channels, s * s)
+    whole, split = PixelSums(PIXELS, s, channels), PixelSums(PIXELS, s, channels)
+    whole.commit(_reduce(whole, ids, m, values, cell))
+    staged = [_reduce(split, ids[:half], m, values[:, :half * m], cell[:half * m]),
+              _reduce(split, ids[half:], m, values[:, half * m:], cell[half * m:])]
+    for pending in staged:
+        split.commit(pending)
+    for acc in (whole, split):
+        _render(np.random.default_rng(4), acc, passes=2)
+    a, b = whole.arrays(), split.arrays()
+    assert all(a[k].tobytes() == b[k].tobytes() for k in a)
+
+
 def test_checkpoint_arrays_resume_to_the_same_bits():
     """arrays() restored into a fresh PixelSums and continued gives the bits of
     the uninterrupted sums."""

@@ -71,10 +71,13 @@ The lecture's recipe, made precise:
 Modules: :mod:`.settings` (the parameters, declared once), :mod:`.criterion`
 (the error test), :mod:`.ladder` (batch sizes), :mod:`.reconstruct` (multi-level
 reconstruction), :mod:`.sums` (per-pixel moments and sub-pixel sums),
-:mod:`.engine` (the render loop, checkpoints), :mod:`.result`
-(what a render returns). The ``adaptive`` integrator plugin is
-:mod:`mcrt.render.adaptive_integrator`; the command line's options are in
-:mod:`mcrt.cli._adaptive_args`, the sample-count heat map in :mod:`mcrt.io.heatmap`.
+:mod:`.engine` (the render loop, checkpoints), :mod:`.wavefront` (one
+pass's compacted wavefront, traced), :mod:`.frozen` (the same wavefront
+recorded once per batch size with Dr.Jit's frozen functions and replayed
+without tracing: the same bits), :mod:`.result` (what a render returns). The
+``adaptive`` integrator plugin is :mod:`mcrt.render.adaptive_integrator`; the
+command line's options are in :mod:`mcrt.cli._adaptive_args`, the sample-count
+heat map in :mod:`mcrt.io.heatmap`.
 
 Per-pixel moments are float64, continued sample by sample with Welford's
 update across passes, and each pixel's sub-pixel sums are formed in sample order

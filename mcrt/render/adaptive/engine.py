@@ -14,22 +14,23 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.engine import deferred_interrupts, sampling_integrator, supported_film, trace_pass
+from ...core.engine import deferred_interrupts, sampling_integrator, supported_film
 from ...core.job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted
 from ...core.render import in_film_format
 from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats
-from ...core.trace import CameraSamples, film_grid_size, pixel_of_index
-from ...core.upload import to_device
+from ...core.trace import film_grid_size
 from ...errors import McrtError
 from ...samplers.base import is_mcrt_sampler
 from ...samplers.kit import hash_keys_int
+from . import frozen
 from .criterion import dilate, error_ratio
 from .ladder import batch_ladder, budget_batches, pass_batch_size
 from .reconstruct import reconstruct, subpixel_filter
 from .result import AdaptiveRender, PassRecord
 from .settings import AdaptiveSettings
 from .sums import Pending, PixelSums
+from .wavefront import trace_wavefront
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +104,8 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     # pass and with interrupts held back, so they always describe the passes
     # finished so far: a checkpoint is copied from them only when one is saved.
     pacer = CheckpointPacer(save_every, state_bytes=acc.nbytes() + active.nbytes + batch.nbytes)
+    # Largest batch that fits each pixel's remaining budget (0: done).
+    budget = budget_batches(acc.traced, ladder, settings.max_spp)
     try:
         while active.size:
             pass_start = time.perf_counter()
@@ -114,17 +117,26 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                 for c, ids in enumerate(_chunks(active[batch[active] == m], m, settings)):
                     one_wavefront = k == 0 and ids.size == pixels
                     wave_seed = seed if ours or one_wavefront else hash_keys_int(seed, k, m, c)
-                    bad_total += _trace_wavefront(scene, sensor_obj, sampler, integrator, film,
-                                                  ids, m, k, wave_seed, ours, first,
-                                                  acc, staged, on_samples)
+                    pending = frozen.wavefront(scene, sensor_obj, sampler, integrator, ids, m,
+                                               k, wave_seed, first, acc, on_samples)
+                    if pending is None:  # traced (see .frozen for when)
+                        bad_total += trace_wavefront(scene, sensor_obj, sampler, integrator,
+                                                     film, ids, m, k, wave_seed, ours, first,
+                                                     acc, staged, on_samples)
+                    else:
+                        staged.append(pending)
+                        bad_total += pending.nonfinite
                     lanes += ids.size * m
             with deferred_interrupts():
                 for wavefront in staged:
                     acc.commit(wavefront)
+                    # The budget left changed for these pixels only.
+                    budget[wavefront.ids] = budget_batches(acc.traced[wavefront.ids], ladder,
+                                                           settings.max_spp)
                 _check_progress(acc, spent)
                 leader += int(sizes.max())
                 failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
-                                                         (height, width))
+                                                         (height, width), budget)
                 dr.sync_thread()
                 record = PassRecord(index=k, active_pixels=int(active.size), samples=lanes,
                                     batch_sizes=tuple(sizes.tolist()),
@@ -212,20 +224,20 @@ def _chunks(group: np.ndarray, m: int, settings: AdaptiveSettings) -> list[np.nd
 
 
 def _next_pass(acc: PixelSums, leader: int, ladder: tuple[int, ...],
-               settings: AdaptiveSettings,
-               shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               settings: AdaptiveSettings, shape: tuple[int, int],
+               budget: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Error test over the whole image, dilation, and the next pass's batches:
     ``(failing, batch, active_next)``; ``leader`` counts the samples of a pixel
-    that was active in every pass so far, this one included."""
-    count = acc.pixel_stats().count
-    ratio = error_ratio(acc.mean_y, acc.se_y, count, settings)
+    that was active in every pass so far, this one included; ``budget``:
+    :func:`~.ladder.budget_batches` of every pixel."""
+    ratio = error_ratio(acc.mean_y, acc.se_y, acc.counts(), settings)
     failing = ratio > 1.0
     # Every active pixel gets the pass's batch size (less only where the
     # budget is nearly spent): one wavefront per pass, and a pixel that
     # becomes active late - typically a neighbour of a failing pixel - is
     # refined at the failing pixel's rate at once.
     step = pass_batch_size(leader, ladder, settings)
-    batch = np.minimum(step, budget_batches(acc.traced, ladder, settings.max_spp))
+    batch = np.minimum(step, budget)
     # Only pixels that can still be refined spread activity: a pixel that spent
     # its budget no longer keeps its neighbours busy.
     refinable = batch > 0
@@ -250,78 +262,6 @@ def _result(film, acc, width, height, s, settings, records, sampler, ladder, has
                           spp=spp, passes=records, seconds=seconds, settings=settings,
                           sampler=_sampler_label(sampler), batch_ladder=ladder,
                           luminance_stderr=se_y, converged=converged)
-
-
-class _Wavefront:
-    """The sink of one compacted wavefront (``m`` lanes per pixel of ``ids``):
-    its sums are reduced by ``acc`` and staged, merged into ``acc`` by the
-    engine at the end of the pass."""
-
-    def __init__(self, acc: PixelSums, staged: list[Pending], ids: np.ndarray,
-                 on_samples: Any, k: int) -> None:
-        self.acc, self.staged, self.ids, self.on_samples, self.k = acc, staged, ids, on_samples, k
-        self.pending: Pending | None = None
-        self.bad = 0
-
-    def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
-        s = self.acc.s
-        inside = samples.position - mi.Vector2f(samples.pixel)
-        sub = mi.Vector2u(dr.clip(dr.floor(inside * s), 0, s - 1))
-        finite = dr.isfinite(values[0]) & dr.isfinite(values[1]) & dr.isfinite(values[2])
-        cell = sub.y * s + sub.x
-        dr.eval(values, finite, cell, inside if self.on_samples is not None else None)
-        self.pending = self.acc.reduce(self.ids, group, values, finite, cell)
-        self.bad = self.pending.nonfinite
-        if self.on_samples is not None:
-            self.on_samples(self.k, np.repeat(self.ids, group),
-                            np.array(inside, dtype=np.float64).T,
-                            np.array(mi.Color3f(*values[:3]), dtype=np.float64).T)
-
-    def commit(self) -> None:
-        if self.pending is not None:
-            self.staged.append(self.pending)
-            self.pending = None
-
-
-def _rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[Any]:
-    values: list[Any] = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
-    if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
-        values.append(dr.select(samples.valid, mi.Float(1.0), mi.Float(0.0)))
-    return values
-
-
-def _trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, m: int,
-                     k: int, wave_seed: int, ours: bool, differential_spp: int,
-                     acc: PixelSums, staged: list[Pending], on_samples) -> int:
-    """Trace ``m`` new samples of each pixel in ``ids`` (one compacted wavefront)
-    with the engine's pass step, its sums appended to ``staged`` (merged into
-    ``acc`` by the caller at the end of the pass: a pixel is in one wavefront per
-    pass, so ``acc`` already holds its earlier passes); returns the non-finite
-    samples found."""
-    lanes = ids.size * m
-    if (k + 1) * m >= 1 << 32:
-        raise McrtError("adaptive: too many passes for 32-bit sample indices; raise growth")
-    # Lanes: m consecutive lanes per active pixel, built in the kernel from the ids.
-    lane = dr.arange(mi.UInt32, lanes)
-    pixel_index = dr.gather(mi.UInt32, to_device(mi.UInt32, ids), lane // m)
-    sampler.set_sample_count(m)
-    if ours and getattr(sampler, "progressive", False):
-        # One sequence per pixel (sobol): this batch continues it where the pixel's
-        # previous batches stopped, so its samples so far are always a prefix.
-        start = dr.gather(mi.UInt32, to_device(mi.UInt32, acc.traced[ids]), lane // m)
-        sampler.seed_lanes(wave_seed, pixel_index, lane % m + start)
-    elif ours:
-        # Epoch k of the pixel's sequence at sample count m: a fresh pattern.
-        sampler.seed_lanes(wave_seed, pixel_index, lane % m + dr.opaque(mi.UInt32, k * m))
-    else:
-        sampler.set_samples_per_wavefront(m)
-        sampler.seed(wave_seed, lanes)
-    wavefront = _Wavefront(acc, staged, ids, on_samples, k)
-    # Ray differentials are scaled for the first pass's count in every pass,
-    # which keeps one kernel for all passes.
-    trace_pass(scene, sensor, integrator, sampler, pixel_of_index(film, pixel_index),
-               differential_spp, wavefront, m, _rgb_alpha)
-    return wavefront.bad
 
 
 def _develop(film: mi.Film, acc: PixelSums, width: int, height: int,

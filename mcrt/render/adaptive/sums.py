@@ -14,15 +14,22 @@ thread per pixel walks its lanes in sample order and
 A sample with a non-finite R, G or B is left out of both and counted. The
 moments of every pixel live on the host (the error test reads them after every
 pass: 8 float64 per pixel); the sub-pixel sums, ``s * s * (C + 1)`` float64 per
-pixel (one array over all pixels for each), stay on the device until the image
-is developed. A wavefront's results are *pending* until
+pixel (one pixel-major array: a pixel's row of sums is contiguous), stay on the
+device until the image is developed. A wavefront's results are *pending* until
 :meth:`PixelSums.commit`, which the engine calls for all of a pass's wavefronts
 at its end with interrupts held back, so the sums always describe whole passes.
-The commit adds a pixel's sub-pixel sums to its slots with one scatter-add per
-plane: one pixel is in one wavefront per pass, so each slot gets exactly one
-addition per commit (no contention, the same bits as a gather, add and scatter,
-whatever the thread scheduling), and the planes are updated in place (a scatter
-into a plane that a pending gather still reads would copy the whole plane first).
+The commit adds a pixel's sub-pixel sums to its row, a thread per pixel: one
+pixel is in one wavefront per pass, so each slot gets exactly one addition per
+commit (no contention, the same bits as a gather, add and scatter, whatever the
+thread scheduling), and the grid is updated in place (a scatter into an array
+that a pending gather still reads would copy it whole first). The row layout
+touches ``row / 8`` cache lines per pixel where one array per (cell, value) took
+one each: the commit kernel of a pass of ~13k pixels (benchmarks/adaptive_pass_cost.py)
+fell from 6.1 to 4.0 ms (median, 2-core VM); a first wavefront of every pixel
+costs one kernel that interleaves its sums (4.4 ms there; none before).
+
+:func:`reduce_wavefront` takes and returns device arrays only, every width from
+an input's, so :mod:`.frozen` records it with the wavefront's trace.
 """
 
 from __future__ import annotations
@@ -74,9 +81,10 @@ class PixelSums:
         #: each commit changes.
         self.mean_y = np.zeros(pixels)
         self.se_y = np.zeros(pixels)
-        #: Sub-pixel sums, one array over all pixels per (cell, value... count).
-        self.planes = [dr.zeros(mi.Float64, pixels) for _ in range(self.row)]
-        #: Nothing committed or restored yet (the planes are still zero).
+        #: Sub-pixel sums, pixel-major: pixel ``p``'s ``(cell, value... count)``
+        #: row is ``grid[p * row : (p + 1) * row]``.
+        self.grid = dr.zeros(mi.Float64, pixels * self.row)
+        #: Nothing committed or restored yet (the grid is still zero).
         self.empty = True
 
     @property
@@ -92,15 +100,20 @@ class PixelSums:
         if len(values) != self.channels:
             raise McrtError(f"adaptive: expected {self.channels} channels, got {len(values)}")
         prior = self.stats[ids]
-        cells: list[tuple[int, list[mi.Float64]]] = []
-        moments: list[mi.Float64] = []
-        for lo in range(0, self.s * self.s, CELLS_PER_KERNEL):
-            hi = min(lo + CELLS_PER_KERNEL, self.s * self.s)
-            sums, out = _reduce_kernel(prior if lo == 0 else None, ids.size, m, values, finite,
-                                       cell, lo, hi)
-            cells.append((lo, sums))
-            moments = moments or out
+        sums, moments = reduce_wavefront(self.prior_columns(prior), m, values, finite, cell,
+                                         self.s)
+        return self.pending(ids, m, prior, sums, moments)
+
+    def prior_columns(self, prior: np.ndarray) -> list[mi.Float64]:
+        """The moments ``prior`` (rows of :attr:`stats`) on the device, a column each."""
+        return [to_device(mi.Float64, prior[:, j]) for j in range(STAT_COLUMNS)]
+
+    def pending(self, ids: np.ndarray, m: int, prior: np.ndarray, sums: list[list[mi.Float64]],
+                moments: list[mi.Float64]) -> Pending:
+        """The :class:`Pending` of a wavefront that :func:`reduce_wavefront` reduced
+        on the device (``prior``: the pixels' moments before it)."""
         stats = np.stack([np.asarray(x, dtype=np.float64) for x in moments], -1)
+        cells = list(zip(range(0, self.s * self.s, CELLS_PER_KERNEL), sums, strict=True))
         return Pending(ids, m, stats, cells,
                        int(round(stats[:, BAD].sum() - prior[:, BAD].sum())))
 
@@ -111,15 +124,17 @@ class PixelSums:
         self.traced[ids] += pending.m
         self.mean_y[ids], self.se_y[ids] = luminance_error(self.pixel_stats(ids))
         sums = [value for _, block in pending.cells for value in block]
-        if self.empty and ids.size == self.pixels:
-            # A first wavefront of every pixel (ids are unique and sorted: 0, 1, ...):
-            # its sums are the planes (0 + x == x), no kernel.
-            self.planes = sums
+        if self.empty and ids.size == self.pixels and bool(np.all(np.diff(ids) > 0)):
+            # A first wavefront of every pixel, in order: its sums are the grid
+            # (0 + x == x), interleaved by one kernel that writes it in order.
+            self.grid = mi.Float64(dr.ravel(_rows(sums)))
         else:
-            index = to_device(mi.UInt32, ids)
-            for plane, value in zip(self.planes, sums, strict=True):
-                dr.scatter_add(plane, value, index, mode=dr.ReduceMode.Direct)
-            dr.eval(self.planes)
+            # One kernel, a thread per pixel: the pixel's row of sums is contiguous
+            # (row / 8 cache lines, not one per plane).
+            slot = to_device(mi.UInt32, ids) * self.row
+            for j, value in enumerate(sums):
+                dr.scatter_add(self.grid, value, slot + j, mode=dr.ReduceMode.Direct)
+        dr.eval(self.grid)
         self.empty = False
 
     # -- reading ------------------------------------------------------------
@@ -130,10 +145,13 @@ class PixelSums:
         return PixelStats(count=stats[:, N].astype(np.int64), mean=stats[:, MEAN],
                           m2=stats[:, M2], nonfinite=stats[:, BAD].astype(np.int64))
 
+    def counts(self) -> np.ndarray:
+        """Finite samples per pixel (a float64 view of :attr:`stats`: exact integers)."""
+        return self.stats[:, N]
+
     def sub_pixels(self) -> tuple[np.ndarray, np.ndarray]:
         """``(sums (pixels, s*s, C), counts (pixels, s*s))`` of the sub-pixels."""
-        planes = [np.asarray(p, dtype=np.float64) for p in self.planes]
-        grid = np.stack(planes, -1)
+        grid = np.array(self.grid, dtype=np.float64)  # a copy: the grid changes in place
         grid = grid.reshape(self.pixels, self.s * self.s, self.channels + 1)
         return grid[..., :-1], grid[..., -1].astype(np.int64)
 
@@ -164,23 +182,46 @@ class PixelSums:
         self.traced[...] = arrays["traced"]
         self.mean_y, self.se_y = luminance_error(self.pixel_stats())
         grid = np.concatenate([arrays["sub_sum"], arrays["sub_count"][..., None]], -1)
-        grid = grid.reshape(self.pixels, self.row)
-        self.planes = [to_device(mi.Float64, grid[:, j]) for j in range(self.row)]
+        self.grid = to_device(mi.Float64, grid)
         self.empty = False
 
 
-def _reduce_kernel(prior: np.ndarray | None, pixels: int, m: int, values: Sequence[mi.Float],
+def _rows(columns: list[mi.Float64]) -> Any:
+    """``columns`` as one dynamic array of rows (its ravel interleaves them)."""
+    array_xf64: Any = mi.ArrayXf64  # the variant's (Mitsuba's stubs do not declare it)
+    return array_xf64(columns)
+
+
+def reduce_wavefront(prior: list[mi.Float64], m: int, values: Sequence[mi.Float],
+                     finite: mi.Bool, cell: mi.UInt32, s: int
+                     ) -> tuple[list[list[mi.Float64]], list[mi.Float64]]:
+    """Device arrays only (a frozen function records it, :mod:`.frozen`): the
+    sub-pixel sums of each block of :data:`CELLS_PER_KERNEL` cells and the
+    moments continued from ``prior`` (:meth:`PixelSums.prior_columns`) over a
+    wavefront of ``m`` lanes per pixel."""
+    blocks: list[list[mi.Float64]] = []
+    moments: list[mi.Float64] = []
+    for lo in range(0, s * s, CELLS_PER_KERNEL):
+        hi = min(lo + CELLS_PER_KERNEL, s * s)
+        sums, out = _reduce_kernel(prior, lo == 0, m, values, finite, cell, lo, hi)
+        blocks.append(sums)
+        moments = moments or out
+    return blocks, moments
+
+
+def _reduce_kernel(prior: list[mi.Float64], moments: bool, m: int, values: Sequence[mi.Float],
                    finite: mi.Bool, cell: mi.UInt32, lo: int, hi: int
                    ) -> tuple[list[mi.Float64], list[mi.Float64]]:
     """One thread per pixel over its ``m`` lanes: the sums of cells ``lo..hi-1``
-    (value channels, then the count, per cell) and, when ``prior`` moments are
-    given, the pixel's moments continued over the lanes (``STAT_COLUMNS`` arrays)."""
+    (value channels, then the count, per cell) and, with ``moments``, the
+    pixel's moments continued from ``prior`` over the lanes (``STAT_COLUMNS``
+    arrays)."""
     width = len(values) + 1
-    first = dr.arange(mi.UInt32, pixels) * m
+    # The pixel count from an input's width (not a host integer: a frozen
+    # function replays with other widths).
+    first = dr.arange(mi.UInt32, dr.width(prior[0])) * m
     local = dr.alloc_local(mi.Float64, (hi - lo) * width, dr.zeros(mi.Float64))
-    columns: list[Any] = []
-    if prior is not None:
-        columns = [to_device(mi.Float64, prior[:, j]) for j in range(STAT_COLUMNS)]
+    columns: list[Any] = list(prior) if moments else []
 
     def body(k: Any, local: Any, *stat: Any) -> tuple[Any, ...]:
         lane = first + k
@@ -198,7 +239,8 @@ def _reduce_kernel(prior: np.ndarray | None, pixels: int, m: int, values: Sequen
 
     state = dr.while_loop((mi.UInt32(0), local, *columns), lambda k, *_: k < m, body)
     local = state[1]
-    sums = [local[j] for j in range((hi - lo) * width)]
+    block = (hi - lo) * width
+    sums = [local[j] for j in range(block)]
     stats = list(state[2:])
     dr.eval(sums, stats)
     return sums, stats
@@ -219,4 +261,4 @@ def _welford(stat: Sequence[Any], x: Sequence[Any], keep: Any) -> list[Any]:
     return [n, *means, *m2s, dr.select(keep, stat[BAD], stat[BAD] + 1.0)]
 
 
-__all__ = ["CELLS_PER_KERNEL", "Pending", "PixelSums"]
+__all__ = ["CELLS_PER_KERNEL", "Pending", "PixelSums", "reduce_wavefront"]

@@ -1,0 +1,107 @@
+"""One adaptive wavefront: ``m`` new samples of each of a pass's active pixels,
+traced as one compacted wavefront and reduced into pending sums (:mod:`.sums`).
+
+:func:`trace_wavefront` traces it with the engine's pass step (every sampler,
+every callback); :mod:`.frozen` replays the same kernels for mcrt's samplers
+without tracing, from the helpers here, so both give the same bits.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ...core.engine import trace_pass
+from ...core.trace import CameraSamples, pixel_of_index
+from ...core.upload import to_device
+from ...errors import McrtError
+from .sums import Pending, PixelSums
+
+
+def rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[Any]:
+    """A sample's values as the sums take them: R, G, B [, alpha]."""
+    values: list[Any] = [samples.rgb.x, samples.rgb.y, samples.rgb.z]
+    if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+        values.append(dr.select(samples.valid, mi.Float(1.0), mi.Float(0.0)))
+    return values
+
+
+def sample_cells(samples: CameraSamples, values: list[Any], s: int) -> tuple[Any, Any, Any]:
+    """``(finite, cell, inside)`` per lane: whether R, G and B are finite, the
+    sample's sub-pixel (of ``s x s``) and its position inside the pixel."""
+    inside = samples.position - mi.Vector2f(samples.pixel)
+    sub = mi.Vector2u(dr.clip(dr.floor(inside * s), 0, s - 1))
+    finite = dr.isfinite(values[0]) & dr.isfinite(values[1]) & dr.isfinite(values[2])
+    return finite, sub.y * s + sub.x, inside
+
+
+def check_passes(k: int, m: int) -> None:
+    """Sample indices are 32-bit: pass ``k`` of batch ``m`` must fit."""
+    if (k + 1) * m >= 1 << 32:
+        raise McrtError("adaptive: too many passes for 32-bit sample indices; raise growth")
+
+
+class _Wavefront:
+    """The sink of one compacted wavefront (``m`` lanes per pixel of ``ids``):
+    its sums are reduced by ``acc`` and staged, merged into ``acc`` by the
+    engine at the end of the pass."""
+
+    def __init__(self, acc: PixelSums, staged: list[Pending], ids: np.ndarray,
+                 on_samples: Any, k: int) -> None:
+        self.acc, self.staged, self.ids, self.on_samples, self.k = acc, staged, ids, on_samples, k
+        self.pending: Pending | None = None
+        self.bad = 0
+
+    def add(self, samples: CameraSamples, values: list[mi.Float], group: int) -> None:
+        finite, cell, inside = sample_cells(samples, values, self.acc.s)
+        dr.eval(values, finite, cell, inside if self.on_samples is not None else None)
+        self.pending = self.acc.reduce(self.ids, group, values, finite, cell)
+        self.bad = self.pending.nonfinite
+        if self.on_samples is not None:
+            self.on_samples(self.k, np.repeat(self.ids, group),
+                            np.array(inside, dtype=np.float64).T,
+                            np.array(mi.Color3f(*values[:3]), dtype=np.float64).T)
+
+    def commit(self) -> None:
+        if self.pending is not None:
+            self.staged.append(self.pending)
+            self.pending = None
+
+
+def trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, m: int,
+                    k: int, wave_seed: int, ours: bool, differential_spp: int,
+                    acc: PixelSums, staged: list[Pending], on_samples) -> int:
+    """Trace ``m`` new samples of each pixel in ``ids`` (one compacted wavefront)
+    with the engine's pass step, its sums appended to ``staged`` (merged into
+    ``acc`` by the caller at the end of the pass: a pixel is in one wavefront per
+    pass, so ``acc`` already holds its earlier passes); returns the non-finite
+    samples found."""
+    lanes = ids.size * m
+    check_passes(k, m)
+    # Lanes: m consecutive lanes per active pixel, built in the kernel from the ids.
+    lane = dr.arange(mi.UInt32, lanes)
+    pixel_index = dr.gather(mi.UInt32, to_device(mi.UInt32, ids), lane // m)
+    sampler.set_sample_count(m)
+    if ours and getattr(sampler, "progressive", False):
+        # One sequence per pixel (sobol): this batch continues it where the pixel's
+        # previous batches stopped, so its samples so far are always a prefix.
+        start = dr.gather(mi.UInt32, to_device(mi.UInt32, acc.traced[ids]), lane // m)
+        sampler.seed_lanes(wave_seed, pixel_index, lane % m + start)
+    elif ours:
+        # Epoch k of the pixel's sequence at sample count m: a fresh pattern.
+        sampler.seed_lanes(wave_seed, pixel_index, lane % m + dr.opaque(mi.UInt32, k * m))
+    else:
+        sampler.set_samples_per_wavefront(m)
+        sampler.seed(wave_seed, lanes)
+    wavefront = _Wavefront(acc, staged, ids, on_samples, k)
+    # Ray differentials are scaled for the first pass's count in every pass,
+    # which keeps one kernel for all passes.
+    trace_pass(scene, sensor, integrator, sampler, pixel_of_index(film, pixel_index),
+               differential_spp, wavefront, m, rgb_alpha)
+    return wavefront.bad
+
+
+__all__ = ["check_passes", "rgb_alpha", "sample_cells", "trace_wavefront"]
