@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
+from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -19,7 +20,7 @@ from pathlib import Path
 from ..core.atomic import check_free_space, remedy
 from ..core.engine import reseeds_each_pass
 from ..core.executor import cluster_address
-from ..core.job import Checkpointing, CheckpointStore, Interrupted
+from ..core.job import Checkpoint, Checkpointing, CheckpointStore, Interrupted
 from ..core.render import FilmRender, PassTasks, render_film
 from ..core.render_job import checkpoint_paths, render_key, require_render_memory
 from ..core.sampling import (
@@ -154,9 +155,7 @@ def run(args: argparse.Namespace) -> int:
         log.info("%s uses %d samples per pixel (requested %d)", name, sampler.sample_count(), spp)
     key = render_key(args.scene, params, overrides, name, sampler.sample_count(), args.seed,
                      passes, sampler_params=metadata["sampler_params"])
-    _common.check_state_files(checkpoint_paths(exr_path, key), "the render's checkpoint")
-    store = CheckpointStore(checkpoint_paths(exr_path, key), key, job_text(args, spp, stem))
-    state = store.load()
+    store, state = _resumable(args, exr_path, key, spp, stem)
     if state is not None:
         log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
     log.info("plan: %s", ", ".join(planned.plan.effects_on))
@@ -167,8 +166,7 @@ def run(args: argparse.Namespace) -> int:
         with _common.cluster_executor(cluster) as executor:
             result = render_film(scene, sampler, seed=args.seed, progress=not args.quiet,
                                  passes=passes, on_pass=on_pass,
-                                 checkpoints=Checkpointing(state, store.save_periodic,
-                                                           checkpoint_interval()),
+                                 checkpoints=_checkpointing(store, state),
                                  tasks=replace(tasks, executor=executor) if tasks else None)
     except Interrupted as stop:
         target = stop.state.meta["settings"][0] if stop.state is not None else spp
@@ -178,16 +176,8 @@ def run(args: argparse.Namespace) -> int:
             return f"{exr_path} and {png_path} ({partial.spp} spp)"
 
         return _interrupted(stop, store, write_partial, f"of {stop.total} passes")
-
-    try:
-        _write(exr_path, png_path, result, metadata)
-    except Exception as error:  # any failure here (disk, a film mcrt misreads) keeps the render
-        kept = store.save(result.checkpoint) if result.checkpoint else None
-        where = f"; the finished render is kept in {kept}: {remedy(error)} " \
-                f"and run the same command again to write it without rendering" if kept else ""
-        raise McrtError(f"cannot write the outputs: {error}{where}" if not isinstance(
-            error, (McrtError, OSError)) else f"{error}{where}") from None
-    store.discard()
+    _write_or_keep(store, lambda: _write(exr_path, png_path, result, metadata),
+                   result.checkpoint)
     height, width = result.image.shape[:2]
     print(f"sampler {name}  spp {result.spp}  {width}x{height}  passes {result.passes}  "
           f"time {result.seconds:.2f} s  {result.samples_per_second / 1e6:.2f} M samples/s")
@@ -262,6 +252,37 @@ def _interrupted(stop: Interrupted, store: CheckpointStore, write, what: str) ->
     return 130
 
 
+def _resumable(args: argparse.Namespace, exr_path: Path, key: str, budget: int,
+               stem: Path) -> tuple[CheckpointStore, Checkpoint | None]:
+    """A render's checkpoint store next to its EXR, and the state to resume from (if any)."""
+    paths = checkpoint_paths(exr_path, key)
+    _common.check_state_files(paths, "the render's checkpoint")
+    store = CheckpointStore(paths, key, job_text(args, budget, stem))
+    return store, store.load()
+
+
+def _checkpointing(store: CheckpointStore, state: Checkpoint | None) -> Checkpointing:
+    return Checkpointing(state, store.save_periodic, checkpoint_interval())
+
+
+def _write_or_keep(store: CheckpointStore, write: Callable[[], None],
+                   finished: Checkpoint | None = None) -> None:
+    """Write a finished render's outputs, then drop its checkpoint. If writing fails
+    (a full disk, a film mcrt misreads, ...), the render is kept (``finished``, or
+    the state saved after its last pass) and the error says how to write it without
+    rendering again."""
+    try:
+        write()
+    except Exception as error:
+        kept = store.save(finished) if finished is not None else store.saved
+        where = (f"; the finished render is kept in {kept}: {remedy(error)} and run the same "
+                 f"command again to write it without rendering") if kept else ""
+        text = f"{error}" if isinstance(error, (McrtError, OSError)) \
+            else f"cannot write the outputs: {error}"
+        raise McrtError(text + where) from None
+    store.discard()
+
+
 def parse_sampler_params(items: list[str] | None, sampler: str | None) -> dict:
     """``-P key=value`` items to plugin parameters (numbers and booleans typed)."""
     params: dict = {}
@@ -312,10 +333,7 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     from ..io.heatmap import write_heatmap
 
     exr_path, png_path, heat_path = paths
-    _common.check_state_files(checkpoint_paths(exr_path, key), "the render's checkpoint")
-    store = CheckpointStore(checkpoint_paths(exr_path, key), key,
-                            job_text(args, settings.max_spp, exr_path.with_suffix("")))
-    state = store.load()
+    store, state = _resumable(args, exr_path, key, settings.max_spp, exr_path.with_suffix(""))
     if state is not None:
         log.info("resuming after adaptive pass %d", state.meta["next_pass"])
     grid = film_grid_size(scene.sensors()[0].film())
@@ -343,21 +361,14 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     try:
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,
                                           on_pass=report,
-                                          checkpoints=Checkpointing(state, store.save_periodic,
-                                                                    checkpoint_interval()))
+                                          checkpoints=_checkpointing(store, state))
     except Interrupted as stop:
         def write_partial(partial) -> str:
             write(partial, {"partial": 1})
             return f"{exr_path}, {png_path} and {heat_path} ({partial.samples} samples)"
 
         return _interrupted(stop, store, write_partial, "adaptive passes")
-    try:
-        write(result, {})
-    except (McrtError, OSError) as error:
-        where = (f"; the finished render is kept in {store.saved}: {remedy(error)} and run "
-                 f"the same command again to write it without rendering") if store.saved else ""
-        raise McrtError(f"{error}{where}") from None
-    store.discard()
+    _write_or_keep(store, lambda: write(result, {}))  # the last pass's state is saved
     height, width = result.image.shape[:2]
     spp = result.spp
     rate = result.samples / result.seconds / 1e6 if result.seconds > 0 else float("inf")
