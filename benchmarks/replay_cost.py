@@ -13,10 +13,14 @@ per-round ratios with their interquartile range. Goal: replayed <= 0.6x
 ``--study CONFIG`` also runs ``mcrt -q compare CONFIG`` as whole processes,
 alternately with replay off and on (``--study-runs`` pairs, after one untimed
 run that fills the kernel and reference caches), and checks that their
-results.json agree in every field but the timings.
+results.json agree in every field but the timings. With ``--baseline CHECKOUT``
+(another checkout of mcrt, e.g. ``git worktree add /tmp/before REV``) the pairs
+are this tree against that checkout's code (``PYTHONPATH``) instead: what a
+change did to a whole study's wall time.
 
     python benchmarks/replay_cost.py                          # ~1 minute
     python benchmarks/replay_cost.py --study configs/quick.toml --study-runs 3
+    python benchmarks/replay_cost.py --res --study configs/quick.toml --baseline /tmp/before
 """
 
 from __future__ import annotations
@@ -51,23 +55,27 @@ TIMED = ("seconds", "efficiency", "time", "environment", "date", "cached")
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--res", type=int, nargs="+", default=[16, 64])
+    parser.add_argument("--res", type=int, nargs="*", default=[16, 64],
+                        help="film sizes of the render rows (none: only the study)")
     parser.add_argument("--spp", type=int, default=4)
     parser.add_argument("--samplers", nargs="+", default=["jittered", "sobol", "independent"])
     parser.add_argument("--rounds", type=int, default=40)
     parser.add_argument("--study", type=Path, help="a study configuration to time end to end")
     parser.add_argument("--study-runs", type=int, default=2)
+    parser.add_argument("--baseline", type=Path,
+                        help="with --study: time this tree against another checkout of mcrt")
     args = parser.parse_args()
-    print(f"{args.rounds} rounds after 3 warm-up calls; ratio: median of per-round ratios "
-          f"(IQR)\n")
-    print("| render | sampler | mi.render [ms] | traced [ms] | replayed [ms] | traced / "
-          "mi.render | replayed / mi.render | replayed / traced |\n|---|---|---:|---:|---:|---|"
-          "---|---|")
+    if args.res:
+        print(f"{args.rounds} rounds after 3 warm-up calls; ratio: median of per-round ratios "
+              f"(IQR)\n")
+        print("| render | sampler | mi.render [ms] | traced [ms] | replayed [ms] | traced / "
+              "mi.render | replayed / mi.render | replayed / traced |\n|---|---|---:|---:|---:|"
+              "---|---|---|")
     for res in args.res:
         for name in args.samplers:
             row(res, args.spp, name, args.rounds)
     if args.study is not None:
-        study(args.study, args.study_runs)
+        study(args.study, args.study_runs, args.baseline)
 
 
 def row(res: int, spp: int, name: str, rounds: int) -> None:
@@ -105,14 +113,19 @@ def _untimed(value):
     return value
 
 
-def study(config: Path, runs: int) -> None:
-    """Whole ``mcrt compare`` processes, replay off and on alternately."""
+def study(config: Path, runs: int, baseline: Path | None = None) -> None:
+    """Whole ``mcrt compare`` processes, alternately: replay off ("0") and on ("1"),
+    or the ``baseline`` checkout ("0") and this tree ("1")."""
     times: dict[str, list[float]] = {"0": [], "1": []}
     results: dict[str, object] = {}
     with tempfile.TemporaryDirectory() as tmp:
         def run(flag: str, index: int) -> float:
             out = Path(tmp) / f"{flag}-{index}"
-            env = {**os.environ, replay.ENV: flag}
+            env = {**os.environ, replay.ENV: flag, "MCRT_CACHE_DIR": str(Path(tmp) / flag)}
+            if baseline is not None:
+                env[replay.ENV] = "1"
+                if flag == "0":
+                    env["PYTHONPATH"] = str(baseline.resolve())
             start = time.perf_counter()
             subprocess.run([sys.executable, "-m", "mcrt", "-q", "compare", str(config), "-o",
                             str(out)], check=True, env=env, stdout=subprocess.DEVNULL)
@@ -120,14 +133,17 @@ def study(config: Path, runs: int) -> None:
             results.setdefault(flag, _untimed(json.loads((out / "results.json").read_text())))
             return seconds
 
-        run("1", -1)  # kernels and references cached
+        run("1", -1)  # kernels and references cached (each side its own cache)
+        run("0", -1)
         for i in range(runs):
             for flag in ("0", "1") if i % 2 == 0 else ("1", "0"):
                 times[flag].append(run(flag, i))
     off, on = statistics.median(times["0"]), statistics.median(times["1"])
     same = results["0"] == results["1"]
-    print(f"\n`mcrt -q compare {config}` ({runs} alternated pairs after a warm-up run): "
-          f"replay off {off:.1f} s, on {on:.1f} s (runs {times['0']} / {times['1']}): "
+    names = (f"{baseline}", "this tree") if baseline is not None else ("replay off", "on")
+    runs_text = " / ".join(", ".join(f"{t:.1f}" for t in times[f]) for f in ("0", "1"))
+    print(f"\n`mcrt -q compare {config}` ({runs} alternated pairs after a warm-up run each): "
+          f"{names[0]} {off:.1f} s, {names[1]} {on:.1f} s (runs {runs_text}): "
           f"**{on / off:.3f}x**; results.json equal but for timings: {same}")
 
 
