@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import drjit as dr
@@ -21,7 +21,6 @@ from ...core.sampling import bind_film_width
 from ...core.stats import PixelStats
 from ...core.trace import film_grid_size
 from ...errors import McrtError
-from ...samplers.base import is_mcrt_sampler
 from ...samplers.kit import hash_keys_int
 from . import frozen
 from .criterion import dilate, error_ratio
@@ -30,7 +29,7 @@ from .reconstruct import reconstruct, subpixel_filter
 from .result import AdaptiveRender, PassRecord
 from .settings import AdaptiveSettings
 from .sums import Pending, PixelSums
-from .wavefront import trace_wavefront
+from .wavefront import Target, trace_wavefront
 
 log = logging.getLogger(__name__)
 
@@ -68,61 +67,48 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     uninterrupted one.
     """
     kept = checkpoints or Checkpointing()
-    resume, save, save_every = kept.resume, kept.save, kept.every
     sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
     film = supported_film(sensor_obj.film())
     sampler = (sampler if sampler is not None else sensor_obj.sampler()).clone()
     ladder = _ladder(sampler, settings)
-    first = ladder[0]
-    ours = is_mcrt_sampler(sampler)
-    has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-
-    grid = film_grid_size(film)
-    bind_film_width(sampler, int(grid[0]))  # zsobol orders pixels along the film
-    width, height = int(grid[0]), int(grid[1])
+    width, height = (int(v) for v in film_grid_size(film))
+    bind_film_width(sampler, width)  # zsobol orders pixels along the film
     pixels = width * height
-    s = settings.subpixels
-    acc = PixelSums(pixels, s, 4 if has_alpha else 3)
-    # leader: samples of a pixel that was active in every pass so far.
-    active, batch, leader, k, seconds_before, records = _start(acc, pixels, first, resume)
+    has_alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
+    acc = PixelSums(pixels, settings.subpixels, 4 if has_alpha else 3)
+    target = Target(scene, sensor_obj, integrator, sampler, ladder[0], acc, on_samples)
+    loop = _Loop.start(acc, pixels, ladder[0], kept.resume)
 
     dr.sync_thread()
     start = time.perf_counter()
 
-    def snapshot() -> Checkpoint:
-        return Checkpoint(
-            meta={"leader": leader, "next_pass": k, "records": [asdict(r) for r in records],
-                  "seconds": seconds_before + time.perf_counter() - start},
-            arrays={**acc.arrays(), "active": active.copy(), "batch": batch.copy()})
-
     def finish() -> AdaptiveRender:
-        return _result(film, acc, width, height, s, settings, records, sampler, ladder,
-                       has_alpha, seconds_before + time.perf_counter() - start)
+        return _result(target, settings, ladder, loop.records,
+                       loop.seconds_before + time.perf_counter() - start)
 
     # The accumulator and the loop state change only together, at the end of a
     # pass and with interrupts held back, so they always describe the passes
     # finished so far: a checkpoint is copied from them only when one is saved.
-    pacer = CheckpointPacer(save_every, state_bytes=acc.nbytes() + active.nbytes + batch.nbytes)
+    pacer = CheckpointPacer(kept.every, state_bytes=acc.nbytes() + loop.nbytes())
     # Largest batch that fits each pixel's remaining budget (0: done).
     budget = budget_batches(acc.traced, ladder, settings.max_spp)
     try:
-        while active.size:
+        while loop.active.size:
             pass_start = time.perf_counter()
             spent = int(acc.traced.sum())
-            sizes = np.unique(batch[active])
+            k, active = loop.next_pass, loop.active
+            sizes = np.unique(loop.batch[active])
             lanes, bad_total = 0, 0
             staged: list[Pending] = []
             for m in sizes.tolist():
-                for c, ids in enumerate(_chunks(active[batch[active] == m], m, settings)):
+                for c, ids in enumerate(_chunks(active[loop.batch[active] == m], m, settings)):
                     one_wavefront = k == 0 and ids.size == pixels
-                    wave_seed = seed if ours or one_wavefront else hash_keys_int(seed, k, m, c)
-                    pending = frozen.wavefront(scene, sensor_obj, sampler, integrator, ids, m,
-                                               k, wave_seed, first, acc, on_samples)
+                    wave_seed = (seed if target.ours or one_wavefront
+                                 else hash_keys_int(seed, k, m, c))
+                    pending = frozen.wavefront(target, ids, m, k, wave_seed)
                     if pending is None:  # traced (see .frozen for when)
-                        bad_total += trace_wavefront(scene, sensor_obj, sampler, integrator,
-                                                     film, ids, m, k, wave_seed, ours, first,
-                                                     acc, staged, on_samples)
+                        bad_total += trace_wavefront(target, ids, m, k, wave_seed, staged)
                     else:
                         staged.append(pending)
                         bad_total += pending.nonfinite
@@ -134,7 +120,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                     budget[wavefront.ids] = budget_batches(acc.traced[wavefront.ids], ladder,
                                                            settings.max_spp)
                 _check_progress(acc, spent)
-                leader += int(sizes.max())
+                leader = loop.leader + int(sizes.max())
                 failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
                                                          (height, width), budget)
                 dr.sync_thread()
@@ -143,15 +129,60 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                                     seconds=time.perf_counter() - pass_start,
                                     converged_pixels=int(pixels - failing.sum()),
                                     nonfinite=bad_total)
-                records.append(record)
-                active = active_next
-                k += 1
+                loop.advance(record, leader, batch, active_next)
             if on_pass is not None:
                 on_pass(record)
-            _save(save, pacer, snapshot, last=not active.size)
+            _save(kept.save, pacer, lambda: loop.snapshot(acc, start),
+                  last=not loop.active.size)
     except KeyboardInterrupt:
-        raise Interrupted(finish() if k > 0 else None, k, k + 1, state=snapshot()) from None
+        k = loop.next_pass
+        raise Interrupted(finish() if k > 0 else None, k, k + 1,
+                          state=loop.snapshot(acc, start)) from None
     return finish()
+
+
+@dataclass
+class _Loop:
+    """The adaptive loop's state between passes (saved with the sums in a checkpoint)."""
+
+    active: np.ndarray  # the pixels the next pass refines
+    batch: np.ndarray  # each pixel's next batch size
+    leader: int  # samples of a pixel that was active in every pass so far
+    next_pass: int
+    seconds_before: float  # spent by the render before it was resumed
+    records: list[PassRecord]
+
+    @classmethod
+    def start(cls, acc: PixelSums, pixels: int, first: int,
+              resume: Checkpoint | None) -> _Loop:
+        """A fresh render's state, or ``resume``'s (its sums restored into ``acc``)."""
+        if resume is None:
+            return cls(np.arange(pixels, dtype=np.int64),
+                       np.full(pixels, first, dtype=np.int64), 0, 0, 0.0, [])
+        acc.restore(resume.arrays)
+        records = [PassRecord(**{**r, "batch_sizes": tuple(r["batch_sizes"])})
+                   for r in resume.meta["records"]]
+        return cls(resume.arrays["active"].astype(np.int64), resume.arrays["batch"],
+                   int(resume.meta["leader"]), int(resume.meta["next_pass"]),
+                   float(resume.meta["seconds"]), records)
+
+    def advance(self, record: PassRecord, leader: int, batch: np.ndarray,
+                active: np.ndarray) -> None:
+        """A pass is done: its record, and the next pass's pixels and batches."""
+        self.records.append(record)
+        self.leader, self.batch, self.active = leader, batch, active
+        self.next_pass += 1
+
+    def nbytes(self) -> int:
+        return int(self.active.nbytes + self.batch.nbytes)
+
+    def snapshot(self, acc: PixelSums, start: float) -> Checkpoint:
+        """The checkpoint of the passes done (``start``: when this run began)."""
+        return Checkpoint(
+            meta={"leader": self.leader, "next_pass": self.next_pass,
+                  "records": [asdict(r) for r in self.records],
+                  "seconds": self.seconds_before + time.perf_counter() - start},
+            arrays={**acc.arrays(), "active": self.active.copy(), "batch": self.batch.copy()})
 
 
 def _ladder(sampler: mi.Sampler, settings: AdaptiveSettings) -> tuple[int, ...]:
@@ -200,22 +231,6 @@ def _integrator_and_settings(
     return integrator, settings
 
 
-def _start(acc: PixelSums, pixels: int, first: int, resume: Checkpoint | None
-           ) -> tuple[np.ndarray, np.ndarray, int, int, float, list[PassRecord]]:
-    """The loop's state before its first pass: ``(active, batch, leader, next
-    pass, seconds so far, records)``, from ``resume`` if given (restored into
-    ``acc``), else a fresh render's."""
-    if resume is None:
-        return (np.arange(pixels, dtype=np.int64), np.full(pixels, first, dtype=np.int64),
-                0, 0, 0.0, [])
-    acc.restore(resume.arrays)
-    records = [PassRecord(**{**r, "batch_sizes": tuple(r["batch_sizes"])})
-               for r in resume.meta["records"]]
-    return (resume.arrays["active"].astype(np.int64), resume.arrays["batch"],
-            int(resume.meta["leader"]), int(resume.meta["next_pass"]),
-            float(resume.meta["seconds"]), records)
-
-
 def _chunks(group: np.ndarray, m: int, settings: AdaptiveSettings) -> list[np.ndarray]:
     """``group``'s pixel ids in chunks of at most ``max_lanes // m`` pixels (one
     wavefront each)."""
@@ -245,9 +260,12 @@ def _next_pass(acc: PixelSums, leader: int, ladder: tuple[int, ...],
     return failing, batch, np.flatnonzero(wanted.ravel() & refinable)
 
 
-def _result(film, acc, width, height, s, settings, records, sampler, ladder, has_alpha,
-            seconds) -> AdaptiveRender:
+def _result(target: Target, settings: AdaptiveSettings, ladder: tuple[int, ...],
+            records: list[PassRecord], seconds: float) -> AdaptiveRender:
     """Develop the accumulated samples into an :class:`AdaptiveRender`."""
+    film, acc, sampler = target.film, target.acc, target.sampler
+    width, height = (int(v) for v in film_grid_size(film))
+    s, has_alpha = acc.s, mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
     ratio = error_ratio(acc.mean_y, acc.se_y, acc.pixel_stats().count, settings)
     image, spp, stats, crop = _develop(film, acc, width, height, s)
     se_y = acc.se_y.reshape(height, width)[crop]

@@ -35,9 +35,8 @@ from ...core import replay
 from ...core.sampling import sampler_fingerprint, sampler_name, sampler_params
 from ...core.trace import film_grid_size, pixel_of_index, trace
 from ...core.upload import to_device
-from ...samplers.base import is_mcrt_sampler
 from .sums import Pending, PixelSums, reduce_wavefront
-from .wavefront import check_passes, rgb_alpha, sample_cells
+from .wavefront import Target, check_passes, rgb_alpha, sample_cells
 
 #: Recordings kept per process (least recently used dropped first): one per
 #: (scene, sampler, batch size, ...); each keeps its scene and integrator alive.
@@ -85,33 +84,32 @@ def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, se
     return reduce_wavefront(prior, m, values, finite, cell, now.s)
 
 
-def why_not(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler, integrator: Any,
-            on_samples: Any) -> str | None:
-    """Why a wavefront cannot be replayed (None: it can)."""
+def why_not(target: Target) -> str | None:
+    """Why the wavefronts of a render cannot be replayed (None: they can)."""
     if os.environ.get(replay.ENV, "1").strip() == "0":
         return f"{replay.ENV}=0"
-    if not is_mcrt_sampler(sampler):
-        return f"Mitsuba's {sampler_name(sampler)} is seeded per wavefront on the host"
-    if on_samples is not None:
+    if not target.ours:
+        return f"Mitsuba's {sampler_name(target.sampler)} is seeded per wavefront on the host"
+    if target.on_samples is not None:
         return "on_samples receives the samples"
-    if type(integrator).__module__.startswith("mcrt."):
-        return f"mcrt's {type(integrator).__name__} works on the host"
-    if not any(x is sensor for x in scene.sensors()):
+    if type(target.integrator).__module__.startswith("mcrt."):
+        return f"mcrt's {type(target.integrator).__name__} works on the host"
+    if not any(x is target.sensor for x in target.scene.sensors()):
         return "the sensor is not one of the scene's"
     return None
 
 
-def wavefront(scene: mi.Scene, sensor: mi.Sensor, sampler: mi.Sampler, integrator: Any,
-              ids: np.ndarray, m: int, k: int, seed: int, spp: int, acc: PixelSums,
-              on_samples: Any) -> Pending | None:
+def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pending | None:
     """Pass ``k``'s wavefront of ``m`` new samples of each pixel in ``ids``,
     reduced (not committed) as :func:`.wavefront.trace_wavefront` reduces it,
     recorded or replayed; None if it was not (then trace it)."""
-    why = why_not(scene, sensor, sampler, integrator, on_samples)
+    why = why_not(target)
     if why is not None:
         replay.note(f"adaptive wavefronts: {why}")
         return None
-    index = next(i for i, x in enumerate(scene.sensors()) if x is sensor)
+    scene, sampler, integrator, acc, spp = (target.scene, target.sampler, target.integrator,
+                                            target.acc, target.first)
+    index = next(i for i, x in enumerate(scene.sensors()) if x is target.sensor)
     progressive = bool(getattr(sampler, "progressive", False))
     kind = _kind(scene, index, sampler, integrator, spp, acc, progressive)
     if kind in _FAILED:  # for every batch size: one failed recording per process

@@ -8,6 +8,7 @@ without tracing, from the helpers here, so both give the same bits.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
@@ -18,7 +19,34 @@ from ...core.engine import trace_pass
 from ...core.trace import CameraSamples, pixel_of_index
 from ...core.upload import to_device
 from ...errors import McrtError
+from ...samplers.base import is_mcrt_sampler
 from .sums import Pending, PixelSums
+
+
+@dataclass(frozen=True)
+class Target:
+    """What every wavefront of one adaptive render traces with and into: the
+    scene, its sensor (and film), the sampling integrator, the sampler (cloned
+    for the render), the first pass's sample count (ray differentials are scaled
+    for it in every pass: one kernel for all passes), the render's sums and the
+    optional ``on_samples`` hook."""
+
+    scene: mi.Scene
+    sensor: mi.Sensor
+    integrator: Any
+    sampler: mi.Sampler
+    first: int
+    acc: PixelSums
+    on_samples: Any = None
+
+    @property
+    def film(self) -> mi.Film:
+        return self.sensor.film()
+
+    @property
+    def ours(self) -> bool:
+        """mcrt's samplers are seeded per lane from device arrays; Mitsuba's per wavefront."""
+        return is_mcrt_sampler(self.sampler)
 
 
 def rgb_alpha(film: mi.Film, samples: CameraSamples) -> list[Any]:
@@ -71,37 +99,36 @@ class _Wavefront:
             self.pending = None
 
 
-def trace_wavefront(scene, sensor, sampler, integrator, film, ids: np.ndarray, m: int,
-                    k: int, wave_seed: int, ours: bool, differential_spp: int,
-                    acc: PixelSums, staged: list[Pending], on_samples) -> int:
-    """Trace ``m`` new samples of each pixel in ``ids`` (one compacted wavefront)
-    with the engine's pass step, its sums appended to ``staged`` (merged into
-    ``acc`` by the caller at the end of the pass: a pixel is in one wavefront per
-    pass, so ``acc`` already holds its earlier passes); returns the non-finite
-    samples found."""
+def trace_wavefront(target: Target, ids: np.ndarray, m: int, k: int, wave_seed: int,
+                    staged: list[Pending]) -> int:
+    """Trace pass ``k``'s ``m`` new samples of each pixel in ``ids`` (one compacted
+    wavefront) with the engine's pass step, its sums appended to ``staged`` (merged
+    into ``target.acc`` by the caller at the end of the pass: a pixel is in one
+    wavefront per pass, so the sums already hold its earlier passes); returns the
+    non-finite samples found."""
+    sampler: Any = target.sampler  # mcrt's have seed_lanes; Mitsuba's take a lane count
+    acc = target.acc
     lanes = ids.size * m
     check_passes(k, m)
     # Lanes: m consecutive lanes per active pixel, built in the kernel from the ids.
     lane = dr.arange(mi.UInt32, lanes)
     pixel_index = dr.gather(mi.UInt32, to_device(mi.UInt32, ids), lane // m)
     sampler.set_sample_count(m)
-    if ours and getattr(sampler, "progressive", False):
+    if target.ours and getattr(sampler, "progressive", False):
         # One sequence per pixel (sobol): this batch continues it where the pixel's
         # previous batches stopped, so its samples so far are always a prefix.
         start = dr.gather(mi.UInt32, to_device(mi.UInt32, acc.traced[ids]), lane // m)
         sampler.seed_lanes(wave_seed, pixel_index, lane % m + start)
-    elif ours:
+    elif target.ours:
         # Epoch k of the pixel's sequence at sample count m: a fresh pattern.
         sampler.seed_lanes(wave_seed, pixel_index, lane % m + dr.opaque(mi.UInt32, k * m))
     else:
         sampler.set_samples_per_wavefront(m)
         sampler.seed(wave_seed, lanes)
-    wavefront = _Wavefront(acc, staged, ids, on_samples, k)
-    # Ray differentials are scaled for the first pass's count in every pass,
-    # which keeps one kernel for all passes.
-    trace_pass(scene, sensor, integrator, sampler, pixel_of_index(film, pixel_index),
-               differential_spp, wavefront, m, rgb_alpha)
+    wavefront = _Wavefront(acc, staged, ids, target.on_samples, k)
+    trace_pass(target.scene, target.sensor, target.integrator, sampler,
+               pixel_of_index(target.film, pixel_index), target.first, wavefront, m, rgb_alpha)
     return wavefront.bad
 
 
-__all__ = ["check_passes", "rgb_alpha", "sample_cells", "trace_wavefront"]
+__all__ = ["Target", "check_passes", "rgb_alpha", "sample_cells", "trace_wavefront"]
