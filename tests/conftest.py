@@ -29,9 +29,10 @@ END_TO_END_MODULES = frozenset({
 
 
 #: End-to-end modules whose tests kill processes or cluster workers at moments they pick, or cap
-#: a process's memory: marked ``serial`` too, and CI runs them one at a time after the rest
-#: (``bash scripts/test.sh``), so that no other test competes with them for the 2 cores.
-SERIAL_MODULES = frozenset({"test_cluster", "test_cluster_faults", "test_kill_and_resume",
+#: a process's memory: marked ``serial`` too (as are single tests elsewhere that do so, or that
+#: keep both cores busy by themselves), and CI runs them one at a time after the rest (``bash
+#: scripts/test.sh``): no other test competes with them for the 2 cores, and theirs with none.
+SERIAL_MODULES = frozenset({"test_cluster_faults", "test_kill_and_resume",
                             "test_resource_limits"})
 
 

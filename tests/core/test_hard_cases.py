@@ -437,6 +437,7 @@ def test_extreme_image_shapes_give_the_furnace_value(shape, spp, sampler):
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # one render that keeps both cores busy for half a minute: CI runs it alone
 def test_more_than_2_32_samples_in_one_render():
     """4096 x 1 pixels of ``sky.xml`` at 1,049,600 spp (2^20 + 2^10): 4,299,161,600
     samples, 2^32 + 4,194,304, in 4100 passes of 4096 x 256 lanes merged with

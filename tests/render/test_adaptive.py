@@ -195,7 +195,11 @@ def _in_range(p) -> list:
 
 
 def test_settings_fields_are_the_declared_parameters():
-    assert [(f.name, f.type, f.default) for f in fields(AdaptiveSettings)] == \
+    # A field's type is its annotation's text, or the class itself once a Dr.Jit frozen
+    # function has traversed an instance (an adaptive integrator's settings, inside a
+    # replayed scene): Dr.Jit resolves dataclass annotations in place.
+    assert [(f.name, getattr(f.type, "__name__", f.type), f.default)
+            for f in fields(AdaptiveSettings)] == \
         [(p.name, p.kind.__name__, p.default) for p in PARAMETERS]
     assert all(f.default is not MISSING for f in fields(AdaptiveSettings))
     assert asdict(AdaptiveSettings()) == {p.name: p.default for p in PARAMETERS}
