@@ -84,10 +84,49 @@ class _Recording:
     channels: int = 0
 
 
+class Recordings:
+    """Frozen functions keyed by everything their traced code decides on the host.
+
+    :meth:`get` answers None the first time it sees a key (trace that render:
+    recording one made once would cost and gain nothing) and the entry made by
+    ``make()`` from the second time on (it records, and later calls replay); at
+    most ``limit`` entries are kept, the least recently used dropped first. Film
+    renders (here) and adaptive wavefronts (:mod:`mcrt.render.adaptive.frozen`)
+    each keep one."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.entries: OrderedDict[tuple, Any] = OrderedDict()
+        self.seen: OrderedDict[tuple, None] = OrderedDict()
+
+    def get(self, key: tuple, make: Callable[[], Any]) -> Any | None:
+        if key not in self.seen and key not in self.entries:
+            self.seen[key] = None
+            while len(self.seen) > 4 * self.limit:
+                self.seen.popitem(last=False)
+            return None
+        entry = self.entries.get(key)
+        if entry is None:
+            entry = self.entries[key] = make()
+            while len(self.entries) > self.limit:
+                self.entries.popitem(last=False)
+        self.entries.move_to_end(key)
+        return entry
+
+    def drop(self, key: tuple) -> None:
+        self.entries.pop(key, None)
+
+    def clear(self) -> None:
+        self.entries.clear()
+        self.seen.clear()
+
+    def count(self) -> int:
+        """How many times the kept frozen functions were recorded (each entry's last item)."""
+        return sum(int(getattr(entry[-1], "n_recordings", 0)) for entry in self.entries.values())
+
+
 _NOW = _Recording()
-_ENTRIES: OrderedDict[tuple, tuple[mi.Scene, Callable[..., Any]]] = OrderedDict()
-#: Keys rendered once (unfrozen): the second render of a key records it.
-_SEEN: OrderedDict[tuple, None] = OrderedDict()
+_RECORDINGS = Recordings(LIMIT)  # entries: (scene kept alive, frozen render)
 _FAILED: dict[tuple, str] = {}
 _NOTED: set[str] = set()
 
@@ -129,17 +168,9 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     key = _key(scene, sampler, shape, sensor, channels)
     if key is None or key in _FAILED:
         return None
-    if key not in _SEEN and key not in _ENTRIES:  # a render made once costs no recording
-        _SEEN[key] = None
-        while len(_SEEN) > 4 * LIMIT:
-            _SEEN.popitem(last=False)
+    entry = _RECORDINGS.get(key, lambda: (scene, dr.freeze(_body, warn_after=4)))
+    if entry is None:  # a render made once is traced
         return None
-    entry = _ENTRIES.get(key)
-    if entry is None:
-        entry = _ENTRIES[key] = (scene, dr.freeze(_body, warn_after=4))
-        while len(_ENTRIES) > LIMIT:
-            _ENTRIES.popitem(last=False)
-    _ENTRIES.move_to_end(key)
     _NOW.sampler, _NOW.shape, _NOW.sensor, _NOW.channels = sampler, shape, sensor, channels
     start = time.perf_counter()
     try:
@@ -152,7 +183,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
             dr.eval(image, nonfinite, sums)
         dr.sync_thread()
     except RuntimeError as error:  # what cannot be recorded renders unfrozen, from now on
-        _ENTRIES.pop(key, None)
+        _RECORDINGS.drop(key)
         _FAILED[key] = " ".join(str(_root(error)).split())[:300]
         note(f"{sampler_name(sampler)} cannot be replayed ({_FAILED[key]})")
         return None
@@ -171,15 +202,14 @@ def note(why: str) -> None:
 def clear() -> None:
     """Drop every recording (and the scenes they keep alive), and forget the
     failures and notes."""
-    _ENTRIES.clear()
-    _SEEN.clear()
+    _RECORDINGS.clear()
     _FAILED.clear()
     _NOTED.clear()
 
 
 def recordings() -> int:
     """How many times the frozen renders of this process were recorded (traced)."""
-    return sum(int(getattr(fn, "n_recordings", 0)) for _, fn in _ENTRIES.values())
+    return _RECORDINGS.count()
 
 
 def _key(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, sensor: int,
@@ -201,5 +231,5 @@ def _root(error: BaseException) -> BaseException:
     return error
 
 
-__all__ = ["ENV", "LIMIT", "MAX_PASSES", "Replayed", "clear", "note", "recordings", "render",
-           "why_not"]
+__all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "recordings",
+           "render", "why_not"]

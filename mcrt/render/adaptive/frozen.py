@@ -23,7 +23,6 @@ the scene's, and whatever fails to record (remembered for the process).
 from __future__ import annotations
 
 import os
-from collections import OrderedDict
 from typing import Any
 
 import drjit as dr
@@ -56,9 +55,8 @@ class _Now:
 
 
 _NOW = _Now()
-_ENTRIES: OrderedDict[tuple, tuple[mi.Scene, Any, Any]] = OrderedDict()
-#: Keys traced once: the second wavefront of a key records it.
-_SEEN: OrderedDict[tuple, None] = OrderedDict()
+#: Entries: (scene and integrator kept alive, frozen wavefront).
+_RECORDINGS = replay.Recordings(LIMIT)
 #: Kinds (keys but the batch size) that failed to record, and why.
 _FAILED: dict[tuple, str] = {}
 
@@ -115,17 +113,9 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
     if kind in _FAILED:  # for every batch size: one failed recording per process
         return None
     key = (*kind, m)
-    if key not in _SEEN and key not in _ENTRIES:  # traced once: no recording
-        _SEEN[key] = None
-        while len(_SEEN) > 4 * LIMIT:
-            _SEEN.popitem(last=False)
+    entry = _RECORDINGS.get(key, lambda: (scene, integrator, dr.freeze(_body, warn_after=4)))
+    if entry is None:  # traced the first time
         return None
-    entry = _ENTRIES.get(key)
-    if entry is None:
-        entry = _ENTRIES[key] = (scene, integrator, dr.freeze(_body, warn_after=4))
-        while len(_ENTRIES) > LIMIT:
-            _ENTRIES.popitem(last=False)
-    _ENTRIES.move_to_end(key)
     check_passes(k, m)
     sampler.set_sample_count(m)
     now = _NOW
@@ -149,7 +139,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
                                      tables)
             pending = acc.pending(ids, m, prior, sums, moments)
     except RuntimeError as error:  # what cannot be recorded is traced, from now on
-        _ENTRIES.pop(key, None)
+        _RECORDINGS.drop(key)
         _FAILED[kind] = " ".join(str(_root(error)).split())[:300]
         replay.note(f"adaptive wavefronts of {sampler_name(sampler)}: {_FAILED[kind]}")
         return None
@@ -160,14 +150,13 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
 
 def clear() -> None:
     """Drop every recording (and the scenes they keep alive) and the failures."""
-    _ENTRIES.clear()
-    _SEEN.clear()
+    _RECORDINGS.clear()
     _FAILED.clear()
 
 
 def recordings() -> int:
     """How many times this process's adaptive wavefronts were recorded (traced)."""
-    return sum(int(getattr(fn, "n_recordings", 0)) for *_, fn in _ENTRIES.values())
+    return _RECORDINGS.count()
 
 
 def _kind(scene: mi.Scene, sensor: int, sampler: mi.Sampler, integrator: Any, spp: int,
