@@ -25,6 +25,7 @@ import pytest
 import mcrt.analysis.report as report
 import mcrt.analysis.study as study
 import mcrt.core.state_file as state_file
+from mcrt.analysis.study.summary import CellScores, ReferenceImage
 from mcrt.core.stats import PixelStats
 from mcrt.errors import McrtError
 from tests.conftest import CHECKERBOARD, study_toml
@@ -54,8 +55,8 @@ def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResu
                      "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
                     for s, r in zip(config.seeds, renders, strict=True)]
         stats = PixelStats.from_images(renders)
-        cells.append(study.summarise_cell(study.CellScores(scene, sampler, spp, per_seed, stats),
-                                          study.ReferenceImage(ref, ref_var, floor)))
+        cells.append(study.summarise_cell(CellScores(scene, sampler, spp, per_seed, stats),
+                                          ReferenceImage(ref, ref_var, floor)))
         if spp == config.image_spp:
             images[(scene, label)] = study.CellImages(
                 render=renders[0].astype(np.float32),
@@ -63,7 +64,7 @@ def synthetic_result(tmp_path: Path, done: int | None = None) -> study.StudyResu
                 std=np.sqrt(stats.variance.mean(axis=-1)).astype(np.float32))
     references = {"checkerboard": study.ReferenceInfo("checkerboard", 64, "independent", 1.0,
                                                       floor, 1e-5, w, h)}
-    fits = [study._fit_sampler(config, "checkerboard", s.label, cells) for s in config.samplers]
+    fits = [study.fit_sampler("checkerboard", s.label, cells) for s in config.samplers]
     env = {"mcrt": "test", "mitsuba": "-", "drjit": "-", "variant": "-", "python": "-",
            "platform": "-", "cpus": 2, "started": "-"}
     return study.StudyResult(config=config, references=references, cells=cells, fits=fits,
