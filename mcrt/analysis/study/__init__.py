@@ -104,12 +104,21 @@ from .config import (
 from .fields import CELL_FIELDS, FIT_FIELDS, RESOLVED_FACTOR, Cell, Column, Field
 from .runner import ReferenceInfo, StudyResult, environment, run_study
 from .store import STATE_DIR, STATE_FORMAT, StudyState, reference_fingerprint, study_key
-from .summary import CellImages, CellRenders, cell_images, cell_renders, fit_sampler, summarise_cell
+from .summary import (
+    CellImages,
+    CellRenders,
+    CellScores,
+    ReferenceImage,
+    cell_images,
+    cell_renders,
+    fit_sampler,
+    summarise_cell,
+)
 
 __all__ = ["CELL_FIELDS", "FIT_FIELDS", "MAX_NAME_BYTES", "MIN_REFERENCE_FACTOR",
            "RESOLVED_FACTOR", "STATE_DIR", "STATE_FORMAT", "STUDY_NULL_DRAWS", "WARMUP_SEED",
-           "Cell", "CellImages", "CellRenders", "Column", "ConfigError", "Field",
-           "ReferenceInfo", "ReferenceSpec", "SamplerSpec", "SceneSpec",
+           "Cell", "CellImages", "CellRenders", "CellScores", "Column", "ConfigError", "Field",
+           "ReferenceImage", "ReferenceInfo", "ReferenceSpec", "SamplerSpec", "SceneSpec",
            "StudyConfig",
            "StudyResult", "StudyState", "cell_images", "cell_keys", "cell_renders",
            "check_config", "environment", "fit_sampler", "load_config", "parse_config",

@@ -27,23 +27,14 @@ from ...core.timing import Sample, machine, round_orders
 from ...errors import McrtError
 from ..filter_noise import filter_correlation, variance_factor
 from ..metrics import REL_MSE_EPSILON, reference_noise_floor
+from . import summary
 from .checks import check_config
 from .conclude import conclude, timing_verdict
 from .config import SamplerSpec, SceneSpec, StudyConfig, cell_keys
 from .fields import Cell
 from .seeds import SeedRender, SeedTask, collect, render_seed
 from .store import StudyState, reference_fingerprint
-from .summary import (
-    CellImages,
-    CellRenders,
-    CellScores,
-    ReferenceImage,
-    cell_images,
-    cell_renders,
-    fit_sampler,
-    retime_cell,
-    summarise_cell,
-)
+from .summary import CellImages, CellRenders, CellScores, ReferenceImage
 
 if TYPE_CHECKING:
     from ...core.scene_files import SceneSource
@@ -263,7 +254,7 @@ class _Run:
 
     def result(self, interrupted: dict[str, Any] | None = None) -> StudyResult:
         pixels = {name: ref.width * ref.height for name, ref in self.references.items()}
-        fits = [fit_sampler(scene, sampler.label, self.cells, pixels[scene])
+        fits = [summary.fit_sampler(scene, sampler.label, self.cells, pixels[scene])
                 for scene in self.references for sampler in self.config.samplers]
         order = {key: i for i, key in enumerate(cell_keys(self.config))}
         measured = sorted(self.cells, key=lambda c: order[(c["scene"], c["sampler"],
@@ -393,7 +384,7 @@ class _Run:
         index = next(i for i, c in enumerate(self.cells)
                      if (c["scene"], c["sampler"], c["spp_requested"]) == (scene, sampler.label,
                                                                             spp))
-        cell = self.cells[index] = retime_cell(self.cells[index], times)
+        cell = self.cells[index] = summary.retime_cell(self.cells[index], times)
         if self.state is not None:
             self.state.add(cell, None, self.seconds())
 
@@ -409,14 +400,15 @@ class _Run:
                             sampler.label, spp, values["seed"], values["nonfinite"])
         renders = [np.asarray(r.rgb, dtype=np.float64) for r in scored]
         stats = PixelStats.from_images(renders)
-        cell = summarise_cell(CellScores(name, sampler, spp, per_seed, stats,
+        cell = summary.summarise_cell(CellScores(name, sampler, spp, per_seed, stats,
                                          rfilter=scene.spec.rfilter,
                                          variance_factor=variance_factor(correlation),
                                          times=[r.time for r in rendered]), ref)
         images = None
         if spp == self.config.image_spp:
-            images = self.images[(name, sampler.label)] = cell_images(renders, stats, ref.mean)
-        views = self.renders[(name, sampler.label, spp)] = cell_renders(renders, stats)
+            images = summary.cell_images(renders, stats, ref.mean)
+            self.images[(name, sampler.label)] = images
+        views = self.renders[(name, sampler.label, spp)] = summary.cell_renders(renders, stats)
         self.cells.append(cell)
         self.current = None
         if self.state is not None:
