@@ -109,6 +109,22 @@ def untimed(value):
     return value
 
 
+@pytest.fixture
+def cache(tmp_path, monkeypatch) -> Path:
+    """A private, empty mcrt cache directory (``MCRT_CACHE_DIR``)."""
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def same_stats(a, b) -> None:
+    """Two renders' per-pixel moments are equal bit for bit."""
+    import numpy as np
+
+    for name in ("count", "mean", "m2", "nonfinite"):
+        np.testing.assert_array_equal(getattr(a.stats, name), getattr(b.stats, name),
+                                      err_msg=name)
+
+
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     """``mcrt ARGV`` in-process: (exit code, stdout, stderr); argparse exits included."""
     try:

@@ -39,14 +39,6 @@ SMALL = {"res": "8", "max_depth": "3"}
 
 
 @pytest.fixture
-def cache(tmp_path, monkeypatch) -> Path:
-    """A private, empty cache directory."""
-    root = tmp_path / "cache"
-    monkeypatch.setenv("MCRT_CACHE_DIR", str(root))
-    return root
-
-
-@pytest.fixture
 def scene(tmp_path) -> Path:
     """A private copy of the Cornell box (tests may edit it)."""
     path = tmp_path / "box.xml"

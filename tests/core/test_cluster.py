@@ -31,7 +31,7 @@ from mcrt.core.cluster import DaskExecutor  # noqa: E402
 from mcrt.core.job import Interrupted  # noqa: E402
 from mcrt.core.scene_files import bundle_scene, materialize, scene_digest  # noqa: E402
 from mcrt.io import read_exr  # noqa: E402
-from tests.conftest import study_toml, untimed  # noqa: E402
+from tests.conftest import same_stats, study_toml, untimed  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -43,18 +43,6 @@ def cluster():
     executor = DaskExecutor.connect("local:2")
     yield executor
     executor.close()
-
-
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
-    return tmp_path / "cache"
-
-
-def _same_stats(a, b) -> None:
-    for name in ("count", "mean", "m2", "nonfinite"):
-        np.testing.assert_array_equal(getattr(a.stats, name), getattr(b.stats, name),
-                                      err_msg=name)
 
 
 def test_the_local_dashboard_listens_on_this_machine_only(cluster):
@@ -84,7 +72,7 @@ def test_reference_on_a_cluster_is_bit_identical(cluster):
     there = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False,
                           executor=cluster)
     assert there.passes == here.passes == 8
-    _same_stats(here, there)
+    same_stats(here, there)
 
 
 @pytest.mark.serial  # kills a worker or the cluster at a moment it picks
@@ -102,7 +90,7 @@ def test_ctrl_c_on_the_client_keeps_the_passes_and_resumes_without_a_cluster(clu
     assert stopped.value.done == 3
     resumed = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8)
     assert resumed.resumed_passes == 3
-    _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
+    same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
 
 
 def _tiny_study(tmp_path: Path) -> Path:
@@ -321,7 +309,7 @@ def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
         local.close()
     resumed = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8)
     assert resumed.resumed_passes >= 2
-    _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
+    same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
 
 
 @pytest.mark.parametrize("sampler", ["sobol", "independent", "scene's seeded jittered"])

@@ -20,7 +20,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("distributed")
@@ -29,24 +28,12 @@ from mcrt.analysis.reference import get_reference  # noqa: E402
 from mcrt.analysis.study import load_config, run_study  # noqa: E402
 from mcrt.core.cluster import DaskExecutor  # noqa: E402
 from mcrt.errors import McrtError  # noqa: E402
-from tests.conftest import study_toml, untimed  # noqa: E402
+from tests.conftest import same_stats, study_toml, untimed  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
 PARAMS = {"res": "24"}
 DASK = Path(sys.executable).parent / "dask"
-
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
-    return tmp_path / "cache"
-
-
-def _same_stats(a, b) -> None:
-    for name in ("count", "mean", "m2", "nonfinite"):
-        np.testing.assert_array_equal(getattr(a.stats, name), getattr(b.stats, name),
-                                      err_msg=name)
-
 
 def _worker_pids(executor: DaskExecutor) -> list[int]:
     """The process ids of the workers the scheduler knows now (one that just
@@ -134,7 +121,7 @@ def test_a_reference_survives_workers_killed_one_after_another(cache):
         executor.close()
     assert len(killed) == 6, killed
     assert there.passes == here.passes == 16
-    _same_stats(here, there)
+    same_stats(here, there)
 
 
 def _dies_first(folder: str, deaths: int, index: int) -> int:
@@ -299,4 +286,4 @@ def test_no_worker_coming_back_is_one_error_naming_the_workers(tmp_path, cache, 
     assert any("waiting up to 2 s for workers" in r.getMessage() for r in caplog.records)
     resumed = get_reference(CORNELL, PARAMS, spp=256, spp_per_pass=8)
     assert resumed.resumed_passes >= 1
-    _same_stats(resumed, get_reference(CORNELL, PARAMS, spp=256, spp_per_pass=8, cache=False))
+    same_stats(resumed, get_reference(CORNELL, PARAMS, spp=256, spp_per_pass=8, cache=False))

@@ -49,12 +49,6 @@ def _commands(tmp: Path) -> dict[str, list[str]]:
 COMMANDS = ["render", "adaptive", "reference", "compare", "demo", "pattern", "integrate"]
 
 
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
-    return tmp_path / "cache"
-
-
 def _one_line(code: int, err: str) -> str:
     lines = [line for line in err.strip().splitlines() if not line.startswith("mcrt: note:")]
     assert code == 2 and len(lines) == 1 and "Traceback" not in err, err

@@ -470,7 +470,7 @@ def test_works_with_our_samplers_and_mitsubas(edges, edges_reference, name):
 
 # -- NaN handling ---------------------------------------------------------------------
 
-class _NaNIntegrator(mi.SamplingIntegrator):
+class NaNDirect(mi.SamplingIntegrator):
     """`direct`, but NaN in the left quarter of the image and, in a band of
     columns, in half of the samples (a sample's own random number decides)."""
 
@@ -486,12 +486,12 @@ class _NaNIntegrator(mi.SamplingIntegrator):
         return dr.select(nan, mi.Color3f(dr.nan), spec), valid, aovs
 
     def to_string(self) -> str:
-        return "_NaNIntegrator[]"
+        return "NaNDirect[]"
 
 
 def test_nan_pixels_do_not_stall_or_poison_the_render(edges, caplog):
     settings = AdaptiveSettings(threshold=0.05, max_spp=128)
-    nan_integrator = _NaNIntegrator(mi.Properties())
+    nan_integrator = NaNDirect(mi.Properties())
     result = render_adaptive(edges, make_sampler("jittered", 16), settings, seed=4,
                              integrator=nan_integrator)
     clean = render_adaptive(edges, make_sampler("jittered", 16), settings, seed=4)

@@ -24,6 +24,7 @@ from mcrt.core.sampling import make_sampler
 from mcrt.render.adaptive import AdaptiveSettings, frozen, render_adaptive
 from mcrt.render.scene import load_scene
 from tests.conftest import OUR_SAMPLERS, sampler_params
+from tests.render.test_adaptive import NaNDirect
 
 ROOT = Path(__file__).resolve().parents[2]
 SETTINGS = AdaptiveSettings(threshold=0.05, max_spp=128)
@@ -125,27 +126,8 @@ def test_several_wavefronts_per_pass_and_cell_blocks_replay_the_same_bits(monkey
     assert _compare(monkeypatch, edges, "jittered", settings) >= 1
 
 
-class _NaNDirect(mi.SamplingIntegrator):
-    """`direct`, NaN in the left quarter of the image and in half of the samples
-    of a band of columns: a user's Python integrator, recorded like Mitsuba's."""
-
-    def __init__(self, props: mi.Properties) -> None:
-        super().__init__(props)
-        self.inner = mi.load_dict({"type": "direct"})
-
-    def sample(self, scene, sampler, ray, medium=None, active=True):
-        spec, valid, aovs = self.inner.sample(scene, sampler, ray, medium, active)
-        coin = sampler.next_1d(active) < 0.5
-        x = ray.d.x / -ray.d.z
-        nan = (x < -0.2) | ((x > 0.05) & (x < 0.12) & coin)
-        return dr.select(nan, mi.Color3f(dr.nan), spec), valid, aovs
-
-    def to_string(self) -> str:
-        return "_NaNDirect[]"
-
-
 def test_a_python_integrator_with_nan_samples_replays_the_same_bits(monkeypatch, edges):
-    integrator = _NaNDirect(mi.Properties())
+    integrator = NaNDirect(mi.Properties())
     assert _compare(monkeypatch, edges, "sobol", integrator=integrator) >= 1
 
 
