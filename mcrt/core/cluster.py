@@ -189,6 +189,8 @@ class DaskExecutor:
 
     def status(self) -> str:
         """``workers B/N busy``: workers running a task, of all workers."""
+        if self.client.status != "running":  # (asking would wait for a reconnection)
+            return ""
         try:
             processing = self.client.processing()
         except Exception:  # noqa: BLE001 - a progress note must never fail a job
@@ -264,6 +266,11 @@ class DaskExecutor:
                 pass
             except _LOST as error:
                 raise self._lost_scheduler(error) from None
+            except ValueError:  # Dask's `wait` found no client: ours closed itself
+                if self.client.status == "running":
+                    raise
+                raise self._lost_scheduler(ConnectionError("the connection to it was lost")) \
+                    from None
             done = [future for future in submitted if future.status in _DONE]
             if done:
                 self._workers_back()

@@ -286,7 +286,13 @@ def test_the_quick_study_on_local_2_equals_in_process(tmp_path, cache):
 def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
     """The cluster closes after the reference's second pass is folded: the job
     ends with one McrtError naming the cluster; the folded passes are in the
-    cache and the same reference in this process resumes after them."""
+    cache and the same reference in this process resumes after them.
+
+    The one worker runs the passes in an order Dask picks, and a client that
+    already holds every result when it closes the cluster has nothing left to
+    lose (the job then rightly finishes). So the passes are many and not tiny
+    (32 of 64x64 pixels x 8 spp): at the close most of them are still to run,
+    which the test checks before it looks at the error."""
     from distributed import LocalCluster
 
     from mcrt.errors import McrtError
@@ -294,22 +300,27 @@ def test_a_scheduler_that_goes_away_is_one_error_and_the_passes_are_kept(cache):
     local = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                          dashboard_address=":0")
     executor = DaskExecutor.connect(local.scheduler_address)
+    params = {"res": "64"}
+    left_at_close: list[int] = []
 
     def close_cluster(index: int, passes: int) -> None:
         if index == 1:
+            futures = executor.client.futures.values()
+            left_at_close.append(sum(f.status != "finished" for f in futures))
             local.close()
 
     try:
         with pytest.raises(McrtError, match="lost the Dask scheduler") as lost:
-            get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, executor=executor,
+            get_reference(CORNELL, params, spp=256, spp_per_pass=8, executor=executor,
                           on_pass=close_cluster)
         assert "\n" not in str(lost.value) and "run the same command again" in str(lost.value)
     finally:
         executor.close()
         local.close()
-    resumed = get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8)
+        assert left_at_close and left_at_close[0] > 0, "every pass had run before the close"
+    resumed = get_reference(CORNELL, params, spp=256, spp_per_pass=8)
     assert resumed.resumed_passes >= 2
-    same_stats(resumed, get_reference(CORNELL, PARAMS, spp=64, spp_per_pass=8, cache=False))
+    same_stats(resumed, get_reference(CORNELL, params, spp=256, spp_per_pass=8, cache=False))
 
 
 @pytest.mark.parametrize("sampler", ["sobol", "independent", "scene's seeded jittered"])
