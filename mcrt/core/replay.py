@@ -131,7 +131,7 @@ _FAILED: dict[tuple, str] = {}
 _NOTED: set[str] = set()
 
 
-def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any]]:
+def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any], list[Any]]:
     """The render a frozen function records: every pass, then the film developed
     (``tables``: the sampler's own device arrays, inputs like the scene's)."""
     now = _NOW
@@ -139,7 +139,30 @@ def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any
     accumulator = FilmAccumulator(film, now.channels)
     assert now.shape is not None
     run_passes(scene, now.sampler, accumulator, PassRun(now.shape), seed, sensor=now.sensor)
-    return accumulator.develop(), accumulator.nonfinite, accumulator.sums
+    return (accumulator.develop(), accumulator.nonfinite, accumulator.sums,
+            take_outputs(sampling_integrator(scene)))
+
+
+def replayable(integrator: Any) -> bool:
+    """Whether ``integrator`` traces with device arrays only: Mitsuba's (C++)
+    integrators and any that says so with ``replayable = True`` (mcrt's Python
+    integrators are not, unless they do)."""
+    return not type(integrator).__module__.startswith("mcrt.") or \
+        bool(getattr(integrator, "replayable", False))
+
+
+def take_outputs(integrator: Any) -> list[Any]:
+    """What a replayable integrator computed on the device while it was traced
+    (shading counts, say), taken from it: a recording returns them, so that a
+    replay makes them again (:meth:`take_replay_outputs`; none by default)."""
+    take = getattr(integrator, "take_replay_outputs", None)
+    return list(take()) if take is not None else []
+
+
+def put_outputs(integrator: Any, values: list[Any]) -> None:
+    """Hand a recording's or replay's :func:`take_outputs` back to the integrator."""
+    if values:
+        integrator.put_replay_outputs(values)
 
 
 def why_not(scene: mi.Scene, shape: PassShape, progress: bool, **kept: Any) -> str | None:
@@ -155,7 +178,7 @@ def why_not(scene: mi.Scene, shape: PassShape, progress: bool, **kept: Any) -> s
     if shape.passes > MAX_PASSES:
         return f"more than {MAX_PASSES} passes"
     integrator = sampling_integrator(scene)
-    if type(integrator).__module__.startswith("mcrt."):
+    if not replayable(integrator):
         return f"mcrt's {type(integrator).__name__} works on the host"
     return None
 
@@ -179,9 +202,10 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
         # unrelated garbage holding Dr.Jit variables in the middle of the recording,
         # which aborted the process (seen once in CI, a Mitsuba sampler's render).
         with collection_held_back():
-            image, nonfinite, sums = entry[1](scene, dr.opaque(mi.UInt32, seed), tables)
-            dr.eval(image, nonfinite, sums)
+            image, nonfinite, sums, outputs = entry[1](scene, dr.opaque(mi.UInt32, seed), tables)
+            dr.eval(image, nonfinite, sums, outputs)
         dr.sync_thread()
+        put_outputs(sampling_integrator(scene), outputs)
     except RuntimeError as error:  # what cannot be recorded renders unfrozen, from now on
         _RECORDINGS.drop(key)
         _FAILED[key] = " ".join(str(_root(error)).split())[:300]
@@ -231,5 +255,5 @@ def _root(error: BaseException) -> BaseException:
     return error
 
 
-__all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "recordings",
-           "render", "why_not"]
+__all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "put_outputs",
+           "recordings", "render", "replayable", "take_outputs", "why_not"]

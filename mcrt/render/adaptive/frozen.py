@@ -31,6 +31,7 @@ import numpy as np
 
 from ..._gc import collection_held_back
 from ...core import replay
+from ...core.replay import replayable
 from ...core.sampling import sampler_fingerprint, sampler_name, sampler_params
 from ...core.trace import film_grid_size, pixel_of_index, trace
 from ...core.upload import to_device
@@ -90,7 +91,7 @@ def why_not(target: Target) -> str | None:
         return f"Mitsuba's {sampler_name(target.sampler)} is seeded per wavefront on the host"
     if target.on_samples is not None:
         return "on_samples receives the samples"
-    if type(target.integrator).__module__.startswith("mcrt."):
+    if not replayable(target.integrator):
         return f"mcrt's {type(target.integrator).__name__} works on the host"
     if not any(x is target.sensor for x in target.scene.sensors()):
         return "the sensor is not one of the scene's"
