@@ -198,18 +198,40 @@ def keeps_lane_state(sampler: mi.Sampler) -> bool:
     return not is_mcrt_sampler(sampler) and not reseeds_each_pass(sampler)
 
 
-def resume_seed(sampler: mi.Sampler, seed: int, passes_done: int) -> int:
+def resume_seed(sampler: mi.Sampler, seed: Any, passes_done: Any) -> Any:
     """The seed that continues a render after ``passes_done`` passes.
 
     mcrt's samplers are counter-based and continue their exact sequence; the
     random state of Mitsuba's lives in C++, so they continue with a seed
     derived from ``(seed, passes done)``: resumed passes never repeat earlier ones.
+    ``seed`` and ``passes_done`` may be device values (a replayed render's inputs).
     """
-    if passes_done == 0 or is_mcrt_sampler(sampler):
+    if is_mcrt_sampler(sampler) or (isinstance(passes_done, int) and passes_done == 0):
         return seed
-    if not isinstance(seed, int):  # a seed on the device (a replayed render's input)
-        return hash_keys(mi.UInt32(seed), passes_done, 0x2E5)
-    return hash_keys_int(seed, passes_done, 0x2E5)
+    if isinstance(seed, int) and isinstance(passes_done, int):
+        return hash_keys_int(seed, passes_done, 0x2E5)
+    derived = hash_keys(mi.UInt32(seed), passes_done, 0x2E5)
+    return derived if isinstance(passes_done, int) else \
+        dr.select(mi.UInt32(passes_done) == 0, mi.UInt32(seed), derived)
+
+
+def position_sampler(sampler: mi.Sampler, seed: Any, index: Any, shape: PassShape) -> None:
+    """Seed ``sampler`` for a wavefront of ``shape`` at the start of pass
+    ``index`` of a render seeded with ``seed``: where :func:`run_passes` has it
+    then (exactly for mcrt's samplers and ``independent``; Mitsuba's stratified
+    samplers continue with :func:`resume_seed`)."""
+    sampler.set_samples_per_wavefront(shape.group)  # (a hint the next seed() takes)
+    sampler.seed(resume_seed(sampler, seed, index), shape.lanes)
+    if is_mcrt_sampler(sampler):
+        sampler.start_pass(index)  # counter-based: the exact next samples
+
+
+class PassReplayer(Protocol):
+    """Runs a pass without tracing it (:class:`mcrt.core.pass_replay.PassReplay`)."""
+
+    def run(self, accumulator: Accumulator, index: int) -> bool:
+        """Add pass ``index`` into ``accumulator`` (committed); False: trace it."""
+        ...
 
 
 @contextlib.contextmanager
@@ -264,25 +286,21 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
                on_pass: Callable[[int, int], None] | None = None,
                progress: Progress | None = None,
                values: Callable[[mi.Film, CameraSamples], list[Any]] = film_values,
-               stop: int | None = None) -> None:
+               stop: int | None = None, replayer: PassReplayer | None = None) -> None:
     """Trace passes ``run.done .. run.shape.passes - 1`` (or ``stop - 1``) of
     ``scene`` into ``accumulator``; ``run`` is updated after every committed pass.
 
     ``sampler`` must have the sample count ``run.shape.spp``. Ctrl-C (and
     SIGTERM/SIGHUP) raise ``KeyboardInterrupt`` between passes, with ``run``
-    and the accumulator holding every finished pass.
+    and the accumulator holding every finished pass. ``replayer`` runs the
+    passes it can without tracing them (the same bits).
     """
     shape = run.shape
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
     film = sensor_obj.film()
     bind_film_width(sampler, grid_pixels(film)[0])  # zsobol orders pixels along the film
-    sampler.set_samples_per_wavefront(shape.group)
-    start_seed: Any = resume_seed(sampler, seed, run.done)  # the stub wants a UInt array
-    sampler.seed(start_seed, shape.lanes)
-    if is_mcrt_sampler(sampler):
-        for _ in range(run.done):
-            sampler.advance()  # counter-based: the exact next samples
+    position_sampler(sampler, seed, run.done, shape)
     reseed = reseeds_each_pass(sampler)
     pixel_index, _ = split_sample(dr.arange(mi.UInt32, shape.lanes), shape.group)
     pixel = pixel_of_index(film, pixel_index)
@@ -293,13 +311,25 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
             start = time.perf_counter()
             if on_pass is not None:
                 on_pass(index, shape.passes)
-            if reseed and index > first:
-                pass_seed: Any = resume_seed(sampler, seed, index)  # the stub wants a UInt
-                sampler.seed(pass_seed, shape.lanes)
 
             def committed(index: int = index, start: float = start) -> None:
                 run.done = index + 1
                 run.seconds += time.perf_counter() - start
+
+            if replayer is not None:
+                with deferred_interrupts():  # the pass is added in place
+                    replayed = replayer.run(accumulator, index)
+                    if replayed:
+                        committed()
+                if replayed:
+                    if progress is not None:
+                        progress.update(1)
+                    continue
+                replayer = None  # traced from here: the sampler as the loop has it
+                position_sampler(sampler, seed, index, shape)
+            elif reseed and index > first:
+                pass_seed: Any = resume_seed(sampler, seed, index)  # the stub wants a UInt
+                sampler.seed(pass_seed, shape.lanes)
 
             trace_pass(scene, sensor_obj, integrator, sampler, pixel, shape.spp, accumulator,
                        shape.group, values, committed,

@@ -24,7 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import McrtError
-from . import replay
+from . import pass_replay, replay
 from .accumulators import FilmAccumulator, MomentsAccumulator, release_cached_memory
 from .colour import SRGB_TO_XYZ, XYZ_TO_SRGB
 from .engine import (
@@ -42,6 +42,7 @@ from .engine import (
 from .executor import Executor, cluster_status
 from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
+from .pass_replay import PassReplay
 from .progress import Progress
 
 if TYPE_CHECKING:  # the statistics' types: imported by render_stats when it runs
@@ -197,13 +198,14 @@ def _prepare(scene: mi.Scene, sampler: mi.Sampler | None, spp: int | None,
 
 def _run(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator, run: PassRun,
          seed: int, sensor: int, progress: bool,
-         on_pass: Callable[[int, int], None] | None) -> None:
+         on_pass: Callable[[int, int], None] | None,
+         replayer: PassReplay | None = None) -> None:
     shape = run.shape
     bar = Progress(shape.passes, enabled=progress and shape.passes > 1, initial=run.done)
     bar.postfix(f"{shape.lanes} samples/pass")
     try:
         run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
-                   progress=bar)
+                   progress=bar, replayer=replayer)
     finally:
         bar.close()
 
@@ -303,7 +305,8 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     try:
         if tasks is None:
             _run(scene, sampler, accumulator, run, seed, sensor, progress,
-                 before_pass if save is not None else on_pass)
+                 before_pass if save is not None else on_pass,
+                 _pass_replay(scene, sampler, run, seed, sensor, channels, on_pass))
         else:
             task = functools.partial(tasks.task, passes=run.shape.passes)
             _run_tasks(run, accumulator, Job("film", run.shape.passes, task, _add_sums,
@@ -334,8 +337,23 @@ def render_film_pass(scene: mi.Scene, sampler: mi.Sampler, index: int, passes: i
     run = PassRun(pass_shape(width * height, spp, passes=passes), done=index)
     accumulator = FilmAccumulator(film, channels)
     run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
-               stop=index + 1)
+               stop=index + 1, replayer=_pass_replay(scene, sampler, run, seed, sensor, channels,
+                                                     on_pass, eager=False))
     return accumulator.state()
+
+
+def _pass_replay(scene: mi.Scene, sampler: mi.Sampler, run: PassRun, seed: int, sensor: int,
+                 channels: int, subframes: Callable[[int, int], None] | None,
+                 eager: bool | None = None) -> PassReplay | None:
+    """The replayer of a film render's passes, or None (said why, once).
+    Recording at the first pass pays off when a few more passes follow."""
+    why = pass_replay.why_not(scene, sampler, subframes)
+    if why is not None:
+        replay.note(f"passes: {why}")
+        return None
+    if eager is None:
+        eager = run.shape.passes - run.done >= 3
+    return PassReplay(scene, sampler, run.shape, seed, sensor, channels, eager)
 
 
 def _add_sums(total: dict[str, np.ndarray] | None,

@@ -99,8 +99,8 @@ class Recordings:
         self.entries: OrderedDict[tuple, Any] = OrderedDict()
         self.seen: OrderedDict[tuple, None] = OrderedDict()
 
-    def get(self, key: tuple, make: Callable[[], Any]) -> Any | None:
-        if key not in self.seen and key not in self.entries:
+    def get(self, key: tuple, make: Callable[[], Any], eager: bool = False) -> Any | None:
+        if not eager and key not in self.seen and key not in self.entries:
             self.seen[key] = None
             while len(self.seen) > 4 * self.limit:
                 self.seen.popitem(last=False)
@@ -188,8 +188,8 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     """The render of ``scene`` with ``sampler`` (sample count set, film prepared)
     in passes of ``shape``, recorded or replayed; None if it cannot be (then
     render it unfrozen)."""
-    key = _key(scene, sampler, shape, sensor, channels)
-    if key is None or key in _FAILED:
+    key = render_key(scene, sampler, shape, sensor, channels)
+    if key in _FAILED:
         return None
     entry = _RECORDINGS.get(key, lambda: (scene, dr.freeze(_body, warn_after=4)))
     if entry is None:  # a render made once is traced
@@ -208,7 +208,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
         put_outputs(sampling_integrator(scene), outputs)
     except RuntimeError as error:  # what cannot be recorded renders unfrozen, from now on
         _RECORDINGS.drop(key)
-        _FAILED[key] = " ".join(str(_root(error)).split())[:300]
+        _FAILED[key] = reason(error)
         note(f"{sampler_name(sampler)} cannot be replayed ({_FAILED[key]})")
         return None
     finally:
@@ -236,8 +236,10 @@ def recordings() -> int:
     return _RECORDINGS.count()
 
 
-def _key(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, sensor: int,
-         channels: int) -> tuple | None:
+def render_key(scene: mi.Scene, sampler: mi.Sampler, shape: Any, sensor: int,
+               channels: int) -> tuple:
+    """Everything a film render's traced code decides on the host (``shape``:
+    the pass shape, or what of it the recording depends on)."""
     name = sampler_name(sampler)
     identity = getattr(sampler, "_base_seed", None)
     if identity is None:  # Mitsuba's: what a clone of it draws (some hide their base seed)
@@ -249,11 +251,13 @@ def _key(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, sensor: int,
             sampler_fingerprint(name, sampler_params(sampler)), shape, channels)
 
 
-def _root(error: BaseException) -> BaseException:
+def reason(error: BaseException) -> str:
+    """Why a recording failed, on one line: the root cause's message."""
     while error.__cause__ is not None:
         error = error.__cause__
-    return error
+    return " ".join(str(error).split())[:300]
 
 
 __all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "put_outputs",
-           "recordings", "render", "replayable", "take_outputs", "why_not"]
+           "reason", "recordings", "render", "render_key", "replayable", "take_outputs",
+           "why_not"]

@@ -75,7 +75,7 @@ class McrtSampler(mi.Sampler):
         self._key = mi.UInt32(0)
         self._dim = mi.UInt32(0)
         self._pass = mi.UInt32(0)
-        self._pass_count = 0
+        self._pass_count: int | mi.UInt32 = 0
         self._layout: _layout.Layout | None = None
         self._lanes: tuple[mi.UInt32, mi.UInt32] | None = None
         self._lane_stride = 0
@@ -152,6 +152,12 @@ class McrtSampler(mi.Sampler):
     def advance(self) -> None:
         """Move every lane to its next sample (next pass); dimensions restart at 0."""
         self._restart(self._pass_count + 1)
+
+    def start_pass(self, index: int | mi.UInt32) -> None:
+        """Put every lane at pass ``index`` of its sequence, dimension 0: what
+        ``index`` calls of :meth:`advance` after seeding do. ``index`` may be a
+        device value (the input of a replayed pass, :mod:`mcrt.core.pass_replay`)."""
+        self._restart(index)
 
     def schedule_state(self) -> None:
         dr.schedule(self._key, self._dim, self._pass)
@@ -230,9 +236,10 @@ class McrtSampler(mi.Sampler):
         return self._layout
 
     # -- internals -------------------------------------------------------------
-    def _restart(self, pass_count: int) -> None:
+    def _restart(self, pass_count: int | mi.UInt32) -> None:
         self._pass_count = pass_count
-        self._pass = dr.opaque(mi.UInt32, pass_count)
+        self._pass = dr.opaque(mi.UInt32, pass_count) if isinstance(pass_count, int) else \
+            mi.UInt32(pass_count)
         self._dim = dr.opaque(mi.UInt32, 0)
 
     def _seed_key(self, seed: SeedValue) -> mi.UInt32:

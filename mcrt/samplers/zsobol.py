@@ -196,7 +196,7 @@ class ZSobolSampler(McrtSampler):
         self._lane_stride = stride
         self._restart(0)
 
-    def _restart(self, pass_count: int) -> None:
+    def _restart(self, pass_count: int | mi.UInt32) -> None:
         """Also the lanes' digit-permuted index and key of this pass: lazy, and
         the same for every dimension, so a render computes them once per path
         (they are loop-invariant sampler state) instead of once per dimension."""

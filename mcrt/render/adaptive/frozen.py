@@ -141,7 +141,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
             pending = acc.pending(ids, m, prior, sums, moments)
     except RuntimeError as error:  # what cannot be recorded is traced, from now on
         _RECORDINGS.drop(key)
-        _FAILED[kind] = " ".join(str(_root(error)).split())[:300]
+        _FAILED[kind] = replay.reason(error)
         replay.note(f"adaptive wavefronts of {sampler_name(sampler)}: {_FAILED[kind]}")
         return None
     finally:
@@ -170,12 +170,6 @@ def _kind(scene: mi.Scene, sensor: int, sampler: mi.Sampler, integrator: Any, sp
             getattr(sampler, "_base_seed", None), sampler_fingerprint(name, params),
             tuple(film_grid_size(film)), tuple(film.crop_offset()), spp, acc.s,
             acc.channels, progressive)
-
-
-def _root(error: BaseException) -> BaseException:
-    while error.__cause__ is not None:
-        error = error.__cause__
-    return error
 
 
 __all__ = ["LIMIT", "clear", "recordings", "why_not", "wavefront"]

@@ -1,0 +1,180 @@
+"""Film passes replayed one at a time (Dr.Jit's frozen functions).
+
+:mod:`mcrt.core.replay` records a *whole* render and replays it with a new
+seed, for renders that nothing watches or changes between passes. Many renders
+are not like that: ``mcrt render`` shows a progress bar and saves checkpoints,
+a resumed render starts in the middle, motion blur moves the scene before each
+sub-frame, a render of many passes is too long to record whole, and a cluster
+task renders one pass of a render. Most of their passes differ only in device
+values (the pass index, the seed, the sums so far), so
+:class:`PassReplay` records *one pass* with :func:`drjit.freeze` (the sampler
+positioned at pass ``index``, the trace, the film's fold into a copy of the
+sums) and replays it for every later pass of this render and of later renders
+with the same (scene, sampler, pass shape), with the same bits as tracing
+(tests/core/test_pass_replay.py). Between passes the caller runs its hooks as
+before: a checkpoint, a progress note.
+
+Traced instead (the reason said once at debug level on ``mcrt.render``):
+``MCRT_REPLAY=0``; motion blur's sub-frames (the scene is updated between
+passes: replays of scenes/effects/motion.xml differed from tracing in 118 of
+1536 pixels when its cube spins, though Dr.Jit replays moved meshes and
+transforms correctly in isolation; until that is understood, they trace);
+Mitsuba's samplers that keep random state per lane between
+passes (``stratified``, ``multijitter``, ...: only ``independent`` is seeded
+afresh by each pass); integrators that work on the host; other accumulators
+than the film's (statistics renders, references); and whatever fails to record
+(remembered for the process).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+
+from .._gc import collection_held_back
+from ..samplers.base import is_mcrt_sampler
+from ..samplers.kit import split_sample
+from . import replay
+from .accumulators import FilmAccumulator
+from .engine import (
+    Accumulator,
+    PassShape,
+    film_values,
+    grid_pixels,
+    position_sampler,
+    reseeds_each_pass,
+    sampling_integrator,
+)
+from .sampling import bind_film_width, sampler_name
+from .trace import pixel_of_index, trace
+
+#: Recordings kept per process (least recently used dropped first): one per
+#: (scene, sampler, pass shape, ...); each keeps its scene alive.
+LIMIT = 16
+
+
+class _Now:
+    """What the recorded call reads besides its inputs: a plain object, so that
+    :func:`drjit.freeze` never traverses the sampler (reseeded by every pass)."""
+
+    sampler: Any = None
+    shape: PassShape | None = None
+    sensor = 0
+    channels = 0
+
+
+_NOW = _Now()
+_RECORDINGS = replay.Recordings(LIMIT)
+_FAILED: dict[tuple, str] = {}
+
+
+def _body(scene: mi.Scene, seed: Any, index: Any, sums: list[Any], nonfinite: Any,
+          tables: tuple) -> tuple[list[Any], Any, list[Any]]:
+    """Pass ``index`` of a render seeded with ``seed``, folded into ``sums`` and
+    ``nonfinite`` in place: what :func:`~mcrt.core.engine.run_passes` traces."""
+    now = _NOW
+    shape = now.shape
+    assert shape is not None
+    sensor = scene.sensors()[now.sensor]
+    film = sensor.film()
+    integrator = sampling_integrator(scene)
+    sampler = now.sampler
+    bind_film_width(sampler, grid_pixels(film)[0])  # zsobol orders pixels along the film
+    position_sampler(sampler, seed, index, shape)
+    pixel_index, _ = split_sample(dr.arange(mi.UInt32, shape.lanes), shape.group)
+    samples = trace(scene, sensor, sampler, integrator, pixel_of_index(film, pixel_index),
+                    shape.spp)
+    accumulator = FilmAccumulator(film, now.channels)
+    # Copies, not the inputs in place: a recording that fails after the pass was
+    # added must leave the sums as they were (the pass is then traced).
+    accumulator.sums, accumulator.nonfinite = [dr.copy(s) for s in sums], dr.copy(nonfinite)
+    accumulator.add(samples, film_values(film, samples), shape.group)
+    accumulator.commit()
+    return accumulator.sums, accumulator.nonfinite, replay.take_outputs(integrator)
+
+
+def why_not(scene: mi.Scene, sampler: mi.Sampler, subframes: object = None) -> str | None:
+    """Why the passes of a film render of ``scene`` with ``sampler`` cannot be
+    replayed one at a time (None: they can); ``subframes``: the render's
+    sub-frame hook, if any."""
+    if os.environ.get(replay.ENV, "1").strip() == "0":
+        return f"{replay.ENV}=0"
+    if subframes is not None:
+        return "the scene moves between passes (sub-frames)"
+    if not (is_mcrt_sampler(sampler) or reseeds_each_pass(sampler)):
+        return f"Mitsuba's {sampler_name(sampler)} keeps random state per lane"
+    integrator = sampling_integrator(scene)
+    if not replay.replayable(integrator):
+        return f"mcrt's {type(integrator).__name__} works on the host"
+    return None
+
+
+class PassReplay:
+    """The passes of one film render, replayed (:class:`~mcrt.core.engine.PassReplayer`).
+
+    ``eager``: record at the first pass (worth it when several passes follow);
+    otherwise the first render of a kind traces, as :class:`~mcrt.core.replay.Recordings`
+    does, and the next one records."""
+
+    def __init__(self, scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int,
+                 sensor: int, channels: int, eager: bool) -> None:
+        self.scene, self.sampler, self.shape, self.seed = scene, sampler, shape, seed
+        self.sensor, self.channels, self.eager = sensor, channels, eager
+        self.kind = replay.render_key(scene, sampler, (shape.lanes, shape.group, shape.spp),
+                                      sensor, channels)
+        self.seconds = 0.0
+
+    def run(self, accumulator: Accumulator, index: int) -> bool:
+        """Add pass ``index`` into ``accumulator`` (a film's); False: trace it."""
+        if not isinstance(accumulator, FilmAccumulator) or self.kind in _FAILED:
+            return False
+        entry = _RECORDINGS.get(self.kind, lambda: (self.scene, dr.freeze(_body, warn_after=8)),
+                                eager=self.eager)
+        if entry is None:
+            return False
+        now = _NOW
+        now.sampler, now.shape, now.sensor, now.channels = (self.sampler, self.shape,
+                                                            self.sensor, self.channels)
+        start = time.perf_counter()
+        # Drop the sampler's lane state out here: freed inside the recording, memory
+        # that numpy arrays map would be released by a host callback, which Dr.Jit
+        # cannot record (it aborts the process).
+        self.sampler.seed(0, 1)  # type: ignore[arg-type]  # the stub wants a UInt array
+        try:
+            tables: tuple = getattr(self.sampler, "frozen_inputs", tuple)()
+            # No cyclic collection while Dr.Jit records or replays (mcrt.core.replay).
+            with collection_held_back():
+                sums, nonfinite, outputs = entry[1](
+                    self.scene, dr.opaque(mi.UInt32, self.seed), dr.opaque(mi.UInt32, index),
+                    accumulator.sums, accumulator.nonfinite, tables)
+                dr.eval(sums, nonfinite, outputs)
+            dr.sync_thread()
+        except RuntimeError as error:  # what cannot be recorded is traced, from now on
+            _RECORDINGS.drop(self.kind)
+            _FAILED[self.kind] = replay.reason(error)
+            replay.note(f"passes of {sampler_name(self.sampler)}: {_FAILED[self.kind]}")
+            return False
+        finally:
+            now.sampler = None
+        accumulator.sums, accumulator.nonfinite = list(sums), nonfinite
+        replay.put_outputs(sampling_integrator(self.scene), outputs)
+        self.seconds += time.perf_counter() - start
+        return True
+
+
+def clear() -> None:
+    """Drop every recording (and the scenes they keep alive) and the failures."""
+    _RECORDINGS.clear()
+    _FAILED.clear()
+
+
+def recordings() -> int:
+    """How many times this process's replayed passes were recorded (traced)."""
+    return _RECORDINGS.count()
+
+
+__all__ = ["LIMIT", "PassReplay", "clear", "recordings", "why_not"]
