@@ -15,11 +15,12 @@ engine lay it out):
    (``centre``: the covered sample nearest the centre of the pixel's pattern,
    as hardware MSAA shades at the pixel centre, or at a covered sample when the
    centre is not covered), ties to the lower sample index; or the first member
-   in sample order (``first``). Rounds of block reductions peel off one group
-   per pixel at a time, so the cost is ``O(lanes x groups per pixel)``.
-3. :func:`shade_groups`: only representatives are shaded, in a *compacted*
-   wavefront (masked lanes would cost as much as shaded ones in Dr.Jit), by
-   the nested integrator; every lane then takes its group's value (a gather).
+   in sample order (``first``). Each lane scans its pixel's lanes in one
+   kernel, so the cost is ``O(lanes x samples per pixel)``.
+3. :func:`shade_groups`: only representatives are shaded, packed at the front
+   of the wavefront (masked lanes would cost as much as shaded ones in Dr.Jit;
+   packets of slots without one skip the shading), by the nested integrator;
+   every lane then takes its group's value (a gather).
    The film, its reconstruction filter and mcrt's accumulators see ordinary
    samples, one per lane, at each sample's own film position: with a box
    filter a pixel is ``sum over groups of coverage x shaded value``.
@@ -28,6 +29,11 @@ The representatives' shading dimensions (light samples, BSDF samples, ...)
 come from an ``independent`` sampler seeded per wavefront from the scene
 sampler's stream (deterministic for a given seed): the scene sampler's strata
 belong to the pixel's N visibility samples, not to its few shading points.
+
+Nothing here reads a device value on the host (the counts of what was shaded
+stay on the device until :attr:`MultisampleIntegrator.counts` is read), so a
+film render replays it from a recording (:mod:`mcrt.core.replay`) with the
+bits of an unfrozen render, whatever the number of representatives.
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ import mitsuba as mi
 
 from ..core.trace import film_grid_size, integrator_sample
 from ..errors import McrtError
-from ..samplers.kit import hash_keys_int
+from ..samplers.kit import hash_keys
 
 #: Representative choices (``representative`` parameter).
 REPRESENTATIVES = ("centre", "first")
@@ -111,35 +117,44 @@ def representatives(keys: tuple[mi.UInt32, ...], distance: mi.Float | None, grou
                     active: Any = True) -> mi.UInt32:
     """Lane of each lane's representative (``0xFFFFFFFF`` for inactive lanes).
 
-    Each round finds, per pixel, the first lane not yet assigned, takes every
-    unassigned lane with its key as one group, and elects the member of least
-    ``distance`` (all equal when ``distance`` is None: the first member).
+    A lane's group is the active lanes of its pixel (its block of ``group``
+    lanes) whose keys all equal its own; its representative is the member of
+    least ``(distance, lane)`` (all distances equal when ``distance`` is None:
+    the first member). One kernel walks each lane's block with a symbolic loop
+    (``O(lanes x group)`` gathers, cached within the block): no value is read
+    back on the host, so a frozen render (:func:`drjit.freeze`) replays it.
+    Constant keys (width 1: the primitive under ``group_by="shape"``) are left
+    out: they are equal for every lane.
     """
     lanes = dr.width(keys[0])
     lane = dr.arange(mi.UInt32, lanes)
+    on = mi.Bool(active) | dr.zeros(mi.Bool, lanes)  # a literal mask has width 1
     if group == 1:
-        return dr.select(mi.Bool(active), lane, _NONE)
-    block = lane // group
-    keys = tuple(dr.zeros(mi.UInt32, lanes) + k for k in keys)  # literals have width 1
-    todo = mi.Bool(active) & (lane == lane)
-    rep = dr.full(mi.UInt32, _NONE, lanes)
+        return dr.select(on, lane, _NONE)
+    keys = tuple(k for k in keys if dr.width(k) != 1)
     dist = dr.zeros(mi.Float, lanes) + (distance if distance is not None else 0.0)
-    while True:
-        first = dr.gather(mi.UInt32, dr.block_reduce(
-            dr.ReduceOp.Min, dr.select(todo, lane, _NONE), group), block)
-        lead = dr.minimum(first, lanes - 1)
-        member = todo & (first != _NONE)
-        for key in keys:
-            member &= key == dr.gather(mi.UInt32, key, lead)
-        best = dr.gather(mi.Float, dr.block_reduce(
-            dr.ReduceOp.Min, dr.select(member, dist, dr.inf), group), block)
-        chosen = dr.gather(mi.UInt32, dr.block_reduce(
-            dr.ReduceOp.Min, dr.select(member & (dist == best), lane, _NONE), group), block)
-        rep = dr.select(member, chosen, rep)
-        todo &= ~member
-        dr.eval(rep, todo)
-        if not dr.any(todo):
-            return rep
+    dr.eval(on, dist, keys)  # gathered in the loop
+    mine = [mi.UInt32(k) for k in keys]
+
+    def step(j: mi.UInt32, best: mi.UInt32, best_dist: mi.Float
+             ) -> tuple[mi.UInt32, mi.UInt32, mi.Float]:
+        other = (lane // group) * group + j
+        member = dr.gather(mi.Bool, on, other)
+        for key, own in zip(keys, mine, strict=True):
+            member &= dr.gather(mi.UInt32, key, other) == own
+        d = dr.gather(mi.Float, dist, other)
+        # The block is walked in lane order: ties keep the lower lane, and the
+        # first member is taken whatever its distance (NaN too): the lane itself
+        # is one, so every active lane has a representative.
+        better = member & ((best == _NONE) | (d < best_dist))
+        return j + 1, dr.select(better, other, best), dr.select(better, d, best_dist)
+
+    _, rep, _ = dr.while_loop(
+        (dr.zeros(mi.UInt32, lanes), dr.full(mi.UInt32, _NONE, lanes),
+         dr.full(mi.Float, dr.inf, lanes)),
+        lambda j, best, best_dist: j < group, step, mode="symbolic",
+        labels=("j", "best", "best_dist"), label="multisample_representatives")
+    return dr.select(on, rep, _NONE)
 
 
 @dataclass
@@ -149,43 +164,85 @@ class Shaded:
     spectrum: Any
     valid: mi.Bool
     aovs: list[Any]
-    evaluations: int  # shading evaluations (representatives) in the wavefront
-    per_pixel: mi.UInt32  # representatives of each pixel of the wavefront
+    #: Representatives (shading evaluations) of each pixel of the wavefront, on
+    #: the device: their sum is the wavefront's evaluations.
+    per_pixel: mi.UInt32
 
 
-def shading_seed(sampler: mi.Sampler, active: Any = True) -> int:
+def shading_seed(sampler: mi.Sampler, active: Any = True) -> mi.UInt32:
     """A seed for the representatives' shading sampler, drawn from the scene
-    sampler's next dimension (so it changes with the render seed and pass)."""
+    sampler's next dimension (so it changes with the render seed and pass):
+    a hash of the sum of that dimension's bits over the wavefront, computed on
+    the device (one opaque value: no kernel per seed, nothing read back)."""
     u = sampler.next_1d(active)
     total = dr.sum(mi.UInt64(dr.reinterpret_array(mi.UInt32, mi.Float(u))))
-    return hash_keys_int(int(total[0]) & 0xFFFFFFFF, int(total[0]) >> 32, 0x3C5)
+    low, high = mi.UInt32(total & 0xFFFFFFFF), mi.UInt32(total >> 32)
+    seed = hash_keys(low, high, 0x3C5)
+    dr.eval(seed)  # evaluated, so opaque: the shading kernels take it as an input
+    return seed
 
 
 def shade_groups(scene: mi.Scene, nested: mi.SamplingIntegrator, shading: mi.Sampler,
-                 seed: int, ray: mi.RayDifferential3f, rep: mi.UInt32, group: int,
+                 seed: mi.UInt32, ray: mi.RayDifferential3f, rep: mi.UInt32, group: int,
                  medium: Any = None) -> Shaded:
-    """Shade the representatives in one compacted wavefront and give every
-    lane its representative's value (lanes with ``rep == 0xFFFFFFFF`` get 0)."""
+    """Shade the representatives, packed at the front of the wavefront, and
+    give every lane its representative's value (lanes with ``rep ==
+    0xFFFFFFFF`` get 0). ``shading`` (an ``independent`` sampler) is cloned
+    and seeded with ``seed`` for the representatives' shading dimensions.
+
+    The shading wavefront keeps the width of the visibility wavefront, so that
+    nothing depends on how many representatives there are: a frozen render
+    (:func:`drjit.freeze`) replays it whatever their number. The nested
+    integrator runs in a symbolic ``if`` on "this slot holds a representative":
+    the slots past the last representative (whole SIMD packets on the CPU,
+    whole warps on the GPU) skip the shading, so it costs about what a
+    compacted wavefront (``dr.compress``) would: masked lanes alone would cost
+    as much as shaded ones, and ``dr.compress`` makes Dr.Jit record a frozen
+    render again at every call on the CPU (with the film's scatter-adds).
+    """
     lanes = dr.width(rep)
     lane = dr.arange(mi.UInt32, lanes)
     is_rep = rep == lane
-    index: Any = dr.compress(is_rep)
-    count = dr.width(index)
     per_pixel = dr.block_sum(mi.UInt32(is_rep), group)
-    shade_ray = dr.gather(type(ray), ray, index)
-    seed_value: Any = mi.UInt32(seed)  # opaque: a literal seed would compile a kernel per pass
-    dr.make_opaque(seed_value)
-    shading.seed(seed_value, max(count, 1))
-    spec, valid, aovs = integrator_sample(nested, scene, shading, shade_ray, medium, True)
-    valid = mi.Bool(valid)
+    slot = dr.prefix_sum(mi.UInt32(is_rep))  # a representative's slot in the packed wavefront
+    order = dr.zeros(mi.UInt32, lanes)  # the lane shaded in each slot
+    busy = dr.zeros(mi.Bool, lanes)  # the slot holds a representative
+    dr.scatter(order, lane, slot, is_rep)
+    dr.scatter(busy, True, slot, is_rep)
+    shade_ray = dr.gather(type(ray), ray, order)
+    shading = shading.clone()  # its state, made in the symbolic ``if``, dies with it
+    shading.seed(seed, lanes)  # type: ignore[arg-type]  # the stub wants a UInt array
+    spec, valid, aovs = _shade_where(busy, scene, nested, shading, shade_ray, medium)
     dr.eval(spec, valid, aovs)  # one shading kernel (a gather evaluates its source per component)
+    # Every active lane's representative is a representative; inactive lanes
+    # (rep == _NONE) take nothing.
     has = rep != _NONE
-    slot = dr.gather(mi.UInt32, dr.prefix_sum(mi.UInt32(is_rep)), dr.minimum(rep, lanes - 1))
-    take = has & (count > 0)
-    out_spec = dr.gather(type(spec), spec, slot, take)
-    out_valid = dr.gather(mi.Bool, valid, slot, take)
-    out_aovs = [dr.gather(type(a), a, slot, take) for a in aovs]
-    return Shaded(out_spec, out_valid, out_aovs, count, per_pixel)
+    at = dr.gather(mi.UInt32, slot, dr.minimum(rep, lanes - 1))
+    out_spec = dr.gather(type(spec), spec, at, has)
+    out_valid = dr.gather(mi.Bool, valid, at, has)
+    out_aovs = [dr.gather(type(a), a, at, has) for a in aovs]
+    return Shaded(out_spec, out_valid, out_aovs, per_pixel)
+
+
+def _shade_where(busy: mi.Bool, scene: mi.Scene, nested: mi.SamplingIntegrator,
+                 shading: mi.Sampler, ray: mi.RayDifferential3f,
+                 medium: Any) -> tuple[Any, mi.Bool, list[Any]]:
+    """``integrator_sample`` of ``nested`` in the ``busy`` lanes (zeros elsewhere),
+    in a symbolic ``if`` that packets without a busy lane skip."""
+    made: list[Any] = []
+
+    def shade(ray: Any, shading: Any) -> tuple[Any, Any, list[Any], Any]:
+        spec, valid, aovs = integrator_sample(nested, scene, shading, ray, medium, True)
+        made[:] = [type(spec), [type(a) for a in aovs]]
+        return spec, mi.Bool(valid), list(aovs), shading
+
+    def skip(ray: Any, shading: Any) -> tuple[Any, Any, list[Any], Any]:
+        spec_type, aov_types = made  # the true branch is traced first
+        return dr.zeros(spec_type), mi.Bool(False), [dr.zeros(t) for t in aov_types], shading
+
+    spec, valid, aovs, _ = dr.if_stmt((ray, shading), busy, shade, skip, mode="symbolic",
+                                      label="multisample_shade")
+    return spec, valid, list(aovs)
 
 
 def wrap_integrator(desc: Any, plugin: str = "multisample") -> None:

@@ -10,6 +10,12 @@ and ``mi.render(scene)`` (or ``mcrt render``) traces the sampler's N positions
 per pixel for visibility and shades once per surface per pixel (see
 :mod:`mcrt.render.multisample`). The integrator counts what it shaded:
 ``integrator.counts`` (:class:`ShadingCounts`), reset by ``reset_counts()``.
+
+It traces with device arrays only (``replayable``), so mcrt's film renders
+record it once and replay it (:mod:`mcrt.core.replay`). A replay runs none of
+its Python code: each wavefront queues its counts as device arrays, a frozen
+render returns them (``take_replay_outputs``) and hands them back after each
+replay (``put_replay_outputs``), and ``counts`` reads the queue when it is read.
 """
 
 from __future__ import annotations
@@ -26,6 +32,9 @@ from ..errors import McrtError
 from . import multisample as ms
 from .plugins import fill_parameters, register_integrator, wrapper_properties
 from .plugins import parameter_row as plugin_row
+
+#: Wavefronts whose counts wait on the device before they are read back.
+QUEUED = 16
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
@@ -143,12 +152,44 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
         self.representative = values.get("representative", PARAMETERS_BY_NAME[
             "representative"].default)
         self.group_by = values.get("group_by", PARAMETERS_BY_NAME["group_by"].default)
-        self.shading_sampler = mi.load_dict({"type": "independent", "sample_count": 1})
-        self.counts = ShadingCounts()
+        self._state = _State()
+
+    #: Traces with device arrays only: film renders replay it (:mod:`mcrt.core.replay`).
+    replayable = True
+
+    @property
+    def counts(self) -> ShadingCounts:
+        """What was traced and shaded since the last ``reset_counts()`` (read
+        from the device now: wavefronts only queue their counts)."""
+        state = self._state
+        for per_pixel, shape in zip(state.pending[::2], state.pending[1::2], strict=True):
+            _add(state.counts, np.array(per_pixel, dtype=np.int64),
+                 *(int(v) for v in np.array(shape)))
+        state.pending.clear()
+        return state.counts
 
     def reset_counts(self) -> None:
         """Start counting samples and shading evaluations from zero."""
-        self.counts = ShadingCounts()
+        self._state.counts = ShadingCounts()
+        self._state.pending.clear()
+        self._state.traced.clear()
+
+    def take_replay_outputs(self) -> list[Any]:
+        """The counts of the wavefronts traced in a frozen function since the
+        last take (device arrays, the frozen function's outputs), removed."""
+        taken, self._state.traced = self._state.traced, []
+        return taken
+
+    def put_replay_outputs(self, values: list[Any]) -> None:
+        """Counts a frozen function recorded or replayed (:meth:`take_replay_outputs`)."""
+        self._state.pending.extend(values)
+        self._bound_queue()
+
+    def _bound_queue(self) -> None:
+        """Read the queue once it holds :data:`QUEUED` wavefronts: a long render
+        keeps at most that many grids of counts on the device."""
+        if len(self._state.pending) >= 2 * QUEUED:
+            _ = self.counts
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Visibility for every lane, shading for one representative per group."""
@@ -157,7 +198,7 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
         if layout.group == 1:  # one sample per pixel: nothing to share
             spec, valid, aovs = integrator_sample(self.nested, scene, sampler, ray, medium,
                                                   active)
-            self._count(layout, lanes, dr.ones(mi.UInt32, layout.pixels))
+            self._count(layout, dr.ones(mi.UInt32, layout.pixels))
             return spec, valid, aovs
         dr.eval(ray)  # once: keys, distances and the compaction all read it
         keys = ms.surface_keys(scene, ray, self.group_by, active)
@@ -166,24 +207,26 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
         dr.eval(keys, distance)
         rep = ms.representatives(keys, distance, layout.group, active)
         seed = ms.shading_seed(sampler, active)
-        shaded = ms.shade_groups(scene, self.nested, self.shading_sampler, seed, ray, rep,
+        shaded = ms.shade_groups(scene, self.nested, self._state.shading, seed, ray, rep,
                                  layout.group, medium)
-        self._count(layout, shaded.evaluations, shaded.per_pixel)
+        self._count(layout, shaded.per_pixel)
         return shaded.spectrum, shaded.valid, shaded.aovs
 
-    def _count(self, layout: ms.Wavefront, evaluations: int, per_pixel: Any) -> None:
-        counts = self.counts
-        grid = np.array(per_pixel, dtype=np.int64).reshape(layout.grid[1], layout.grid[0])
-        if counts.per_pixel is None and counts.wavefronts == 0:
-            counts.per_pixel = grid
-        elif counts.per_pixel is not None and counts.per_pixel.shape == grid.shape:
-            counts.per_pixel = counts.per_pixel + grid
-        else:
-            counts.per_pixel = None
-        counts.samples += layout.lanes
-        counts.evaluations += int(evaluations)
-        counts.wavefronts += 1
-        counts.samples_per_pixel.append(layout.group)
+    def _count(self, layout: ms.Wavefront, per_pixel: mi.UInt32) -> None:
+        """Queue a wavefront's counts: representatives per pixel and its shape
+        (lanes, samples per pixel, grid), both device arrays, so a frozen render
+        returns them (the shape as a kernel's output: a replay makes it too)."""
+        index, shape = dr.arange(mi.UInt32, 4), mi.UInt32(0)
+        for i, value in enumerate((layout.lanes, layout.group, *layout.grid)):
+            shape = dr.select(index == i, value, shape)
+        dr.eval(per_pixel, shape)
+        state = self._state
+        if dr.flag(dr.JitFlag.FreezingScope):
+            state.traced += [per_pixel, shape]
+        else:  # (a recording that failed left its arrays: an unfrozen render follows it)
+            state.traced.clear()
+            state.pending += [per_pixel, shape]
+            self._bound_queue()
 
     def aov_names(self) -> list[str]:
         return list(self.nested.aov_names())
@@ -191,6 +234,36 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
     def to_string(self) -> str:
         return (f"MultisampleIntegrator[representative={self.representative}, "
                 f"group_by={self.group_by}, nested={self.nested}]")
+
+
+class _State:
+    """The integrator's changing state, in a plain object: Dr.Jit traverses an
+    integrator's attributes (lists, dataclasses, samplers, not plain objects)
+    as inputs of a frozen render, so counts kept there would make every render
+    record again."""
+
+    def __init__(self) -> None:
+        self.counts = ShadingCounts()  # the wavefronts read back so far
+        self.pending: list[Any] = []  # per wavefront queued: per_pixel, shape (device arrays)
+        self.traced: list[Any] = []  # the same, traced in a frozen function, not yet taken
+        #: Cloned and seeded per wavefront for the representatives' shading dimensions.
+        self.shading = mi.load_dict({"type": "independent", "sample_count": 1})
+
+
+def _add(counts: ShadingCounts, per_pixel: np.ndarray, lanes: int, group: int, width: int,
+         height: int) -> None:
+    """Add one wavefront's counts (read from the device) to ``counts``."""
+    grid = per_pixel.reshape(height, width)
+    if counts.per_pixel is None and counts.wavefronts == 0:
+        counts.per_pixel = grid
+    elif counts.per_pixel is not None and counts.per_pixel.shape == grid.shape:
+        counts.per_pixel = counts.per_pixel + grid
+    else:
+        counts.per_pixel = None
+    counts.samples += lanes
+    counts.evaluations += int(per_pixel.sum())
+    counts.wavefronts += 1
+    counts.samples_per_pixel.append(group)
 
 
 def _choice(p: Param, value: Any) -> str:

@@ -236,3 +236,54 @@ def test_multisampling_a_scene_with_shading_noise_says_what_it_costs(tmp_path, c
     code, _, err = run_cli(capsys, "render", str(checker), "-D", "width=16", "-D", "height=12",
                            "--spp", "4", "--multisample", "-o", str(tmp_path / "k"))
     assert code == 0 and "noisier" not in err
+
+
+def _representatives_reference(keys, distance, group, active):
+    """Brute force: the lowest-(distance, lane) active lane of the block with all keys equal."""
+    lanes = len(active)
+    rep = np.full(lanes, 0xFFFFFFFF, np.uint32)
+    for i in np.flatnonzero(active):
+        block = range(i - i % group, i - i % group + group)
+        members = [j for j in block if active[j] and all(k[j] == k[i] for k in keys)]
+        rep[i] = min(members, key=lambda j: (distance[j], j))
+    return rep
+
+
+@pytest.mark.parametrize("with_distance", [True, False])
+def test_representatives_are_the_nearest_member_of_each_group(with_distance):
+    """The device-only election (one symbolic loop per lane) against brute force:
+    random keys of few values, distances with ties, a partial active mask, a
+    constant (width 1) key; and no representative at all where no lane is active."""
+    rng = np.random.default_rng(3)
+    lanes, group = 64 * 9, 9
+    keys = [rng.integers(0, 3, lanes).astype(np.uint32) for _ in range(2)]
+    distance = rng.integers(0, 4, lanes).astype(np.float32)  # many ties
+    active = rng.random(lanes) < 0.8
+    got = ms.representatives(
+        (mi.UInt32(keys[0]), mi.UInt32(0), mi.UInt32(keys[1])),
+        mi.Float(distance) if with_distance else None, group, mi.Bool(active))
+    expected = _representatives_reference(
+        keys, distance if with_distance else np.zeros(lanes), group, active)
+    assert np.array_equal(np.array(got), expected)
+    none = ms.representatives((mi.UInt32(keys[0]),), None, group, dr.zeros(mi.Bool, lanes))
+    assert np.all(np.array(none) == 0xFFFFFFFF)
+
+
+def test_a_wavefront_without_representatives_shades_nothing_and_gives_zeros():
+    """No active lane: no representative, the shading ``if`` skips every slot,
+    every lane gets 0 (no host check of the count, so a replay handles it too)."""
+    scene = _two_surfaces({"type": "direct"}, 0.0)
+    lanes = 32
+    ray = mi.RayDifferential3f(mi.Ray3f(mi.Point3f(0.5, 0, 5), mi.Vector3f(0, 0, -1)))
+    ray = dr.gather(mi.RayDifferential3f, ray, dr.zeros(mi.UInt32, lanes))
+    rep = dr.full(mi.UInt32, 0xFFFFFFFF, lanes)
+    shaded = ms.shade_groups(scene, scene.integrator(),
+                             mi.load_dict({"type": "independent"}), mi.UInt32(1), ray, rep, 4)
+    assert np.all(np.array(shaded.spectrum) == 0) and not np.any(np.array(shaded.valid))
+    assert np.all(np.array(shaded.per_pixel) == 0)
+    # and with every lane active, each lane gets its representative's colour
+    rep = dr.arange(mi.UInt32, lanes) // 4 * 4
+    shaded = ms.shade_groups(scene, scene.integrator(),
+                             mi.load_dict({"type": "independent"}), mi.UInt32(1), ray, rep, 4)
+    assert np.allclose(np.array(shaded.spectrum).T, RIGHT) and np.all(np.array(shaded.valid))
+    assert np.all(np.array(shaded.per_pixel) == 1)
