@@ -15,17 +15,21 @@ with the same (scene, sampler, pass shape), with the same bits as tracing
 before: a checkpoint, a progress note.
 
 Traced instead (the reason said once at debug level on ``mcrt.render``):
-``MCRT_REPLAY=0``; a sub-frame hook (motion blur updates the scene between
-passes; replays of scenes/effects/motion.xml's 16 sub-frames differed from
-tracing in 3 of 4 runs, in about 120 of 1536 pixels, where Dr.Jit recorded
-twice and replayed a state the update had changed; in the run where it
-recorded again, they were equal. Moving meshes to arrays of their own memory
-instead of mapped numpy arrays fixed a spinning cube alone, not the cube and
-the rolling ball together); Mitsuba's samplers that keep random state per lane between
-passes (``stratified``, ``multijitter``, ...: only ``independent`` is seeded
-afresh by each pass); integrators that work on the host; other accumulators
-than the film's (statistics renders, references); and whatever fails to record
-(remembered for the process).
+
+* ``MCRT_REPLAY=0``;
+* films of more than :data:`MAX_SUMS` sums (the copy costs more than tracing);
+* a sub-frame hook: motion blur updates the scene between passes, and replays
+  of scenes/effects/motion.xml's 16 sub-frames differed from tracing in 3 of 4
+  runs, in about 120 of 1536 pixels, where Dr.Jit recorded twice and replayed
+  a state the update had changed (in the run where it recorded again, they
+  were equal; moving meshes to arrays of their own memory instead of mapped
+  numpy arrays fixed a spinning cube alone, not the cube and the rolling ball);
+* Mitsuba's samplers that keep random state per lane between passes
+  (``stratified``, ``multijitter``, ...: only ``independent`` is seeded afresh
+  by each pass);
+* integrators that work on the host; other accumulators than the film's
+  (statistics renders, references); and whatever fails to record (remembered
+  for the process).
 """
 
 from __future__ import annotations
@@ -53,6 +57,12 @@ from .engine import (
 )
 from .sampling import bind_film_width, sampler_name
 from .trace import pixel_of_index, trace
+
+#: Most float64 sums a film may have for its passes to be replayed: a replayed
+#: pass adds into a copy of them, which at 512x512 RGBA (2^20 values, 16 passes
+#: of 2^20 lanes) cost more than tracing saved (a render 0.9% slower; 64x64:
+#: 0.4 ms per pass replayed against 1.9-2.2 ms traced, benchmarks/film_pass_cost.py).
+MAX_SUMS = 1 << 19
 
 #: Recordings kept per process (least recently used dropped first): one per
 #: (scene, sampler, pass shape, ...); each keeps its scene alive.
@@ -99,12 +109,15 @@ def _body(scene: mi.Scene, seed: Any, index: Any, sums: list[Any], nonfinite: An
     return accumulator.sums, accumulator.nonfinite, replay.take_outputs(integrator)
 
 
-def why_not(scene: mi.Scene, sampler: mi.Sampler, subframes: object = None) -> str | None:
+def why_not(scene: mi.Scene, sampler: mi.Sampler, subframes: object = None,
+            sums: int = 0) -> str | None:
     """Why the passes of a film render of ``scene`` with ``sampler`` cannot be
     replayed one at a time (None: they can); ``subframes``: the render's
-    sub-frame hook, if any."""
+    sub-frame hook, if any; ``sums``: float64 values in the film's sums."""
     if os.environ.get(replay.ENV, "1").strip() == "0":
         return f"{replay.ENV}=0"
+    if sums > MAX_SUMS:
+        return f"a film of more than {MAX_SUMS} sums (copying them costs more than tracing)"
     if subframes is not None:
         return "the scene moves between passes (sub-frames)"
     if not (is_mcrt_sampler(sampler) or reseeds_each_pass(sampler)):
@@ -179,4 +192,4 @@ def recordings() -> int:
     return _RECORDINGS.count()
 
 
-__all__ = ["LIMIT", "PassReplay", "clear", "recordings", "why_not"]
+__all__ = ["LIMIT", "MAX_SUMS", "PassReplay", "clear", "recordings", "why_not"]

@@ -306,7 +306,7 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
         if tasks is None:
             _run(scene, sampler, accumulator, run, seed, sensor, progress,
                  before_pass if save is not None else on_pass,
-                 _pass_replay(scene, sampler, run, seed, sensor, channels, on_pass))
+                 _pass_replay(scene, sampler, run, seed, sensor, accumulator, on_pass))
         else:
             task = functools.partial(tasks.task, passes=run.shape.passes)
             _run_tasks(run, accumulator, Job("film", run.shape.passes, task, _add_sums,
@@ -337,23 +337,24 @@ def render_film_pass(scene: mi.Scene, sampler: mi.Sampler, index: int, passes: i
     run = PassRun(pass_shape(width * height, spp, passes=passes), done=index)
     accumulator = FilmAccumulator(film, channels)
     run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
-               stop=index + 1, replayer=_pass_replay(scene, sampler, run, seed, sensor, channels,
-                                                     on_pass, eager=False))
+               stop=index + 1, replayer=_pass_replay(scene, sampler, run, seed, sensor,
+                                                     accumulator, on_pass, eager=False))
     return accumulator.state()
 
 
 def _pass_replay(scene: mi.Scene, sampler: mi.Sampler, run: PassRun, seed: int, sensor: int,
-                 channels: int, subframes: Callable[[int, int], None] | None,
+                 accumulator: FilmAccumulator, subframes: Callable[[int, int], None] | None,
                  eager: bool | None = None) -> PassReplay | None:
     """The replayer of a film render's passes, or None (said why, once).
     Recording at the first pass pays off when a few more passes follow."""
-    why = pass_replay.why_not(scene, sampler, subframes)
+    sums = accumulator.ext[0] * accumulator.ext[1] * accumulator.channels
+    why = pass_replay.why_not(scene, sampler, subframes, sums)
     if why is not None:
         replay.note(f"passes: {why}")
         return None
     if eager is None:
         eager = run.shape.passes - run.done >= 3
-    return PassReplay(scene, sampler, run.shape, seed, sensor, channels, eager)
+    return PassReplay(scene, sampler, run.shape, seed, sensor, accumulator.channels, eager)
 
 
 def _add_sums(total: dict[str, np.ndarray] | None,

@@ -132,9 +132,10 @@ def test_a_cluster_task_replays_its_pass_with_the_same_sums(monkeypatch, name):
 
 
 def test_what_cannot_replay_its_passes_is_traced_and_says_why(monkeypatch, caplog):
-    """Mitsuba's stratified samplers carry random state from pass to pass, and
-    motion blur's sub-frames change the scene between passes: traced, the same
-    bits, a debug note."""
+    """Mitsuba's stratified samplers carry random state from pass to pass,
+    motion blur's sub-frames change the scene between passes, and a large
+    film's sums cost more to copy than a pass to trace: traced, the same bits,
+    a debug note."""
     scene = small_cornell(RES, box_filter=True)
     monkeypatch.setattr(logging.getLogger("mcrt"), "propagate", True)  # to caplog's handler
     with caplog.at_level("DEBUG", logger="mcrt"):
@@ -144,8 +145,12 @@ def test_what_cannot_replay_its_passes_is_traced_and_says_why(monkeypatch, caplo
                       progress=True))
         _same(_render(monkeypatch, scene, "sobol", 1, False, on_pass=lambda i, n: None),
               _render(monkeypatch, scene, "sobol", 1, True, on_pass=lambda i, n: None))
+        monkeypatch.setattr(pass_replay, "MAX_SUMS", RES * RES * 4 - 1)  # this film's, less 1
+        _same(_render(monkeypatch, scene, "sobol", 1, False, progress=True),
+              _render(monkeypatch, scene, "sobol", 1, True, progress=True))
     assert pass_replay.recordings() == 0
     assert "passes: Mitsuba's stratified keeps random state per lane" in caplog.text
+    assert f"passes: a film of more than {RES * RES * 4 - 1} sums" in caplog.text
     assert "passes: the scene moves between passes" in caplog.text
 
 

@@ -1,0 +1,77 @@
+"""A film render's fixed cost per pass: passes traced against passes replayed.
+
+The same render (the Cornell box with a box filter, ``--res`` pixels square,
+``--spp`` samples per pixel, one seed per call) split into 2, 4, 8, ... ``--spp``
+passes: the samples stay the same, so the slope of the time against the number
+of passes (:func:`mcrt.core.timing.fit_cost`) is what one more pass costs on
+its own. Each render has a progress bar (off screen), as ``mcrt render`` has, so
+its passes are replayed one at a time (:mod:`mcrt.core.pass_replay`) unless
+``MCRT_REPLAY=0``; both sides run in this process, interleaved by the timing
+protocol (:func:`mcrt.core.timing.run_interleaved`, one warm-up each). Goal:
+<= 1 ms per pass.
+
+    python benchmarks/film_pass_cost.py [--res 64] [--spp 64] [--rounds 9] 2>/dev/null
+                                        [--samplers sobol independent]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+
+mi.set_variant("llvm_ad_rgb")
+
+import mcrt  # noqa: E402,F401  (registers the samplers)
+from mcrt.core import pass_replay, replay  # noqa: E402
+from mcrt.core.render import render_film  # noqa: E402
+from mcrt.core.sampling import make_sampler  # noqa: E402
+from mcrt.core.timing import fit_cost, run_interleaved  # noqa: E402
+
+CORNELL = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
+GOAL = 1e-3
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--res", type=int, default=64)
+    parser.add_argument("--spp", type=int, default=64)
+    parser.add_argument("--rounds", type=int, default=9)
+    parser.add_argument("--samplers", nargs="+", default=["sobol", "independent"])
+    args = parser.parse_args()
+    text = CORNELL.read_text().replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>')
+    scene = mi.load_string(text, res=str(args.res), spp=str(args.spp))
+    counts = [p for p in (2, 4, 8, 16, 32, 64, 128) if p <= args.spp and args.spp % p == 0]
+    seeds = iter(range(1 << 30))
+
+    def case(name: str, passes: int, on: bool):
+        def run() -> None:
+            os.environ[replay.ENV] = "1" if on else "0"
+            render_film(scene, make_sampler(name, args.spp), seed=next(seeds), passes=passes,
+                        progress=True)
+        return run
+
+    print(f"Cornell box {args.res}^2, box filter, {args.spp} spp in {counts} passes; "
+          f"{args.rounds} rounds, medians", flush=True)
+    print("\n| sampler | traced: ms per pass (+-SE) | replayed: ms per pass (+-SE) | "
+          "replayed / traced, whole render at the most passes | goal <= 1 ms |")
+    print("|---|---|---|---|---|")
+    for name in args.samplers:
+        cases = [case(name, p, on) for on in (False, True) for p in counts]
+        samples = run_interleaved(cases, args.rounds, warmup=1, sync=dr.sync_thread)
+        medians = [statistics.median(s.wall for s in runs) for runs in samples]
+        traced = fit_cost(counts, medians[:len(counts)])
+        replayed = fit_cost(counts, medians[len(counts):])
+        ratio = medians[-1] / medians[len(counts) - 1]
+        print(f"| {name} | {traced.per_unit * 1e3:.2f} (+-{traced.per_unit_se * 1e3:.2f}) | "
+              f"{replayed.per_unit * 1e3:.2f} (+-{replayed.per_unit_se * 1e3:.2f}) | "
+              f"{ratio:.2f} | {'PASS' if replayed.per_unit <= GOAL else 'FAIL'} |", flush=True)
+    print(f"\nrecordings: {pass_replay.recordings()} (one pass shape per pass count and sampler)")
+
+
+if __name__ == "__main__":
+    main()
