@@ -27,6 +27,11 @@ from tests.conftest import sampler_params, small_cornell
 SEEDS = (0, 5)
 RES = 16
 PASSES = 8
+#: Recordings of a render's pass for 2 renders of 8 passes: Dr.Jit records again
+#: when an input turns from a literal (the zero sums of a first pass) into an
+#: array, or where its dry run of a new recording fails; 16 passes are still
+#: mostly replayed.
+MOST_RECORDINGS = 4
 
 
 @pytest.fixture(autouse=True)
@@ -72,8 +77,7 @@ def test_a_render_with_a_progress_bar_replays_its_passes_with_the_same_bits(monk
         _same(_render(monkeypatch, scene, name, seed, False, progress=True),
               _render(monkeypatch, scene, name, seed, True, progress=True))
     assert replay.recordings() == 0
-    assert 1 <= pass_replay.recordings() <= 2  # (Dr.Jit records again once where a
-    # first input was a literal: the zero sums)
+    assert 1 <= pass_replay.recordings() <= MOST_RECORDINGS
 
 
 @pytest.mark.parametrize("case", ["gaussian", "aov"])
@@ -128,7 +132,7 @@ def test_a_cluster_task_replays_its_pass_with_the_same_sums(monkeypatch, name):
         assert a.keys() == b.keys()
         for key in a:
             assert np.array_equal(a[key], b[key]), key
-    assert 1 <= pass_replay.recordings() <= 2
+    assert 1 <= pass_replay.recordings() <= MOST_RECORDINGS
 
 
 def test_what_cannot_replay_its_passes_is_traced_and_says_why(monkeypatch, caplog):
