@@ -125,6 +125,20 @@ def same_stats(a, b) -> None:
                                       err_msg=name)
 
 
+def same_film(a, b) -> None:
+    """Two film renders (:class:`~mcrt.core.render.FilmRender`) are equal bit for
+    bit: the image (as float32 bit patterns), channels, non-finite counts, sample
+    and pass counts, and the checkpoint's sums."""
+    import numpy as np
+
+    assert a.image.shape == b.image.shape and a.channels == b.channels
+    assert np.array_equal(a.image.view(np.uint32), b.image.view(np.uint32))
+    assert np.array_equal(a.nonfinite, b.nonfinite)
+    assert (a.spp, a.passes) == (b.spp, b.passes)
+    for name, array in a.checkpoint.arrays.items():
+        assert np.array_equal(array, b.checkpoint.arrays[name]), name
+
+
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     """``mcrt ARGV`` in-process: (exit code, stdout, stderr); argparse exits included."""
     try:

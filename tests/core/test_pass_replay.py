@@ -22,7 +22,7 @@ from mcrt.core.job import Checkpointing
 from mcrt.core.render import render_film, render_film_pass
 from mcrt.core.sampling import make_sampler
 from mcrt.samplers import registry
-from tests.conftest import sampler_params, small_cornell
+from tests.conftest import same_film, sampler_params, small_cornell
 
 SEEDS = (0, 5)
 RES = 16
@@ -54,15 +54,6 @@ def _render(monkeypatch, scene, name: str, seed: int, on: bool, spp: int = 8 * P
     return render_film(scene, _sampler(name, spp), seed=seed, passes=PASSES, **kwargs)
 
 
-def _same(a, b) -> None:
-    assert a.image.shape == b.image.shape and a.channels == b.channels
-    assert np.array_equal(a.image.view(np.uint32), b.image.view(np.uint32))
-    assert np.array_equal(a.nonfinite, b.nonfinite)
-    assert (a.spp, a.passes) == (b.spp, b.passes)
-    for name, array in a.checkpoint.arrays.items():
-        assert np.array_equal(array, b.checkpoint.arrays[name]), name
-
-
 #: mcrt's samplers and Mitsuba's independent (seeded afresh by each pass).
 REPLAYED = [*registry.names("mcrt"), "independent"]
 
@@ -74,7 +65,7 @@ def test_a_render_with_a_progress_bar_replays_its_passes_with_the_same_bits(monk
     but the first (recorded), for two seeds: one recording serves both."""
     scene = small_cornell(RES, box_filter=True)
     for seed in SEEDS:
-        _same(_render(monkeypatch, scene, name, seed, False, progress=True),
+        same_film(_render(monkeypatch, scene, name, seed, False, progress=True),
               _render(monkeypatch, scene, name, seed, True, progress=True))
     assert replay.recordings() == 0
     assert 1 <= pass_replay.recordings() <= MOST_RECORDINGS
@@ -90,7 +81,7 @@ def test_filters_and_aovs_replay_their_passes_with_the_same_bits(monkeypatch, ca
                            "inner": {"type": "path", "max_depth": 3}}
         scene = mi.load_dict(d)
     for seed in SEEDS:
-        _same(_render(monkeypatch, scene, "sobol", seed, False, progress=True),
+        same_film(_render(monkeypatch, scene, "sobol", seed, False, progress=True),
               _render(monkeypatch, scene, "sobol", seed, True, progress=True))
     assert pass_replay.recordings() >= 1
 
@@ -104,7 +95,7 @@ def test_checkpoints_and_a_resumed_render_replay_with_the_same_bits(monkeypatch)
     for on in (False, True):
         results[on] = _render(monkeypatch, scene, "jittered", 3, on,
                               checkpoints=Checkpointing(save=saved[on].append, every=0))
-    _same(results[False], results[True])
+    same_film(results[False], results[True])
     assert len(saved[True]) == len(saved[False]) == PASSES - 1
     for a, b in zip(saved[False], saved[True], strict=True):
         assert {**a.meta, "seconds": 0} == {**b.meta, "seconds": 0}
@@ -114,7 +105,7 @@ def test_checkpoints_and_a_resumed_render_replay_with_the_same_bits(monkeypatch)
     assert middle.meta["done"] == 3
     resumed = _render(monkeypatch, scene, "jittered", 3, True,
                       checkpoints=Checkpointing(resume=middle))
-    _same(results[False], resumed)
+    same_film(results[False], resumed)
     assert pass_replay.recordings() >= 1
 
 
@@ -143,14 +134,14 @@ def test_what_cannot_replay_its_passes_is_traced_and_says_why(monkeypatch, caplo
     scene = small_cornell(RES, box_filter=True)
     monkeypatch.setattr(logging.getLogger("mcrt"), "propagate", True)  # to caplog's handler
     with caplog.at_level("DEBUG", logger="mcrt"):
-        _same(_render(monkeypatch, scene, "stratified", 1, False,
+        same_film(_render(monkeypatch, scene, "stratified", 1, False,
                       progress=True),
               _render(monkeypatch, scene, "stratified", 1, True,
                       progress=True))
-        _same(_render(monkeypatch, scene, "sobol", 1, False, on_pass=lambda i, n: None),
+        same_film(_render(monkeypatch, scene, "sobol", 1, False, on_pass=lambda i, n: None),
               _render(monkeypatch, scene, "sobol", 1, True, on_pass=lambda i, n: None))
         monkeypatch.setattr(pass_replay, "MAX_SUMS", RES * RES * 4 - 1)  # this film's, less 1
-        _same(_render(monkeypatch, scene, "sobol", 1, False, progress=True),
+        same_film(_render(monkeypatch, scene, "sobol", 1, False, progress=True),
               _render(monkeypatch, scene, "sobol", 1, True, progress=True))
     assert pass_replay.recordings() == 0
     assert "passes: Mitsuba's stratified keeps random state per lane" in caplog.text
@@ -174,5 +165,5 @@ def test_a_recording_that_fails_after_adding_its_pass_leaves_the_sums_alone(monk
     monkeypatch.setattr(pass_replay, "_body", failing)
     monkeypatch.setattr(logging.getLogger("mcrt"), "propagate", True)  # to caplog's handler
     with caplog.at_level("DEBUG", logger="mcrt"):
-        _same(plain, _render(monkeypatch, scene, "sobol", 4, True, progress=True))
+        same_film(plain, _render(monkeypatch, scene, "sobol", 4, True, progress=True))
     assert "passes of sobol: cannot record this" in caplog.text

@@ -21,7 +21,7 @@ from mcrt.core.job import Checkpointing
 from mcrt.core.render import render_film
 from mcrt.core.sampling import make_sampler
 from mcrt.samplers import registry
-from tests.conftest import sampler_params, small_cornell
+from tests.conftest import same_film, sampler_params, small_cornell
 
 SEEDS = (0, 1, 7)
 
@@ -39,21 +39,12 @@ def _render(monkeypatch, scene, name: str, spp: int, seed: int, on: bool, **kwar
     return render_film(scene, make_sampler(name, spp, **params), seed=seed, **kwargs)
 
 
-def _same(a, b) -> None:
-    assert a.image.shape == b.image.shape and a.channels == b.channels
-    assert np.array_equal(a.image.view(np.uint32), b.image.view(np.uint32))
-    assert np.array_equal(a.nonfinite, b.nonfinite)
-    assert (a.spp, a.passes) == (b.spp, b.passes)
-    for name, array in a.checkpoint.arrays.items():
-        assert np.array_equal(array, b.checkpoint.arrays[name]), name
-
-
 def _compare(monkeypatch, scene, name: str, spp: int = 4, **kwargs) -> int:
     """Render every seed unfrozen and replayed; the recordings made."""
     for seed in SEEDS:
         plain = _render(monkeypatch, scene, name, spp, seed, False, **kwargs)
         again = _render(monkeypatch, scene, name, spp, seed, True, **kwargs)
-        _same(plain, again)
+        same_film(plain, again)
     return replay.recordings()
 
 

@@ -18,6 +18,7 @@ import pytest
 from mcrt.core import replay
 from mcrt.core.render import render_film
 from mcrt.core.sampling import make_sampler
+from tests.conftest import same_film
 
 SEEDS = (0, 1, 7)  # 0 traced (a first render), 1 recorded, 7 replayed
 
@@ -44,14 +45,6 @@ def _render(monkeypatch, scene, seed: int, on: bool, sampler: str = "jittered", 
     return result, scene.integrator().counts
 
 
-def _same(a, b) -> None:
-    assert a.image.shape == b.image.shape and a.channels == b.channels
-    assert np.array_equal(a.image.view(np.uint32), b.image.view(np.uint32))
-    assert np.array_equal(a.nonfinite, b.nonfinite)
-    for name, array in a.checkpoint.arrays.items():
-        assert np.array_equal(array, b.checkpoint.arrays[name]), name
-
-
 def _same_counts(a, b) -> None:
     assert (a.samples, a.evaluations, a.wavefronts, a.samples_per_pixel) == \
         (b.samples, b.evaluations, b.wavefronts, b.samples_per_pixel)
@@ -67,7 +60,7 @@ def test_a_replayed_multisample_render_has_the_bits_and_counts_of_an_unfrozen_on
     for seed in SEEDS:
         plain, plain_counts = _render(monkeypatch, scene, seed, False)
         again, again_counts = _render(monkeypatch, scene, seed, True)
-        _same(plain, again)
+        same_film(plain, again)
         _same_counts(plain_counts, again_counts)
         assert again_counts.samples == 16 * 16 * 16 and again_counts.samples_per_pixel == [16]
     # Traced once (twice where Dr.Jit's dry run of the first recording fails): the rest replayed.
@@ -83,7 +76,7 @@ def test_a_replay_shades_another_number_of_representatives_than_its_recording(mo
     for seed in (0, 1, 7, 3):
         plain, plain_counts = _render(monkeypatch, scene, seed, False, "independent", 4)
         again, again_counts = _render(monkeypatch, scene, seed, True, "independent", 4)
-        _same(plain, again)
+        same_film(plain, again)
         _same_counts(plain_counts, again_counts)
         counts[seed] = again_counts
     assert 1 <= replay.recordings() < 3  # 3 at least replayed a recording of 1 or 7
