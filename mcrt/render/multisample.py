@@ -120,9 +120,15 @@ def representatives(keys: tuple[mi.UInt32, ...], distance: mi.Float | None, grou
     A lane's group is the active lanes of its pixel (its block of ``group``
     lanes) whose keys all equal its own; its representative is the member of
     least ``(distance, lane)`` (all distances equal when ``distance`` is None:
-    the first member). One kernel walks each lane's block with a symbolic loop
-    (``O(lanes x group)`` gathers, cached within the block): no value is read
-    back on the host, so a frozen render (:func:`drjit.freeze`) replays it.
+    the first member). Three steps, in symbolic loops (nothing is read back on
+    the host, so a frozen render, :func:`drjit.freeze`, replays them):
+
+    1. each lane walks its block from the start to its first member, the
+       group's *lead* (one step for most lanes: a pixel has few groups);
+    2. each lead walks its whole block for the member of least distance (lanes
+       that lead nothing stop at once, and so do SIMD packets without a lead);
+    3. each lane takes its lead's choice.
+
     Constant keys (width 1: the primitive under ``group_by="shape"``) are left
     out: they are equal for every lane.
     """
@@ -133,27 +139,42 @@ def representatives(keys: tuple[mi.UInt32, ...], distance: mi.Float | None, grou
         return dr.select(on, lane, _NONE)
     keys = tuple(k for k in keys if dr.width(k) != 1)
     dist = dr.zeros(mi.Float, lanes) + (distance if distance is not None else 0.0)
-    dr.eval(on, dist, keys)  # gathered in the loop
+    dr.eval(on, dist, keys)  # gathered in the loops
     mine = [mi.UInt32(k) for k in keys]
+    start = (lane // group) * group
 
-    def step(j: mi.UInt32, best: mi.UInt32, best_dist: mi.Float
-             ) -> tuple[mi.UInt32, mi.UInt32, mi.Float]:
-        other = (lane // group) * group + j
+    def same(other: mi.UInt32) -> mi.Bool:
+        """Whether lane ``other`` is an active lane with this lane's keys."""
         member = dr.gather(mi.Bool, on, other)
         for key, own in zip(keys, mine, strict=True):
             member &= dr.gather(mi.UInt32, key, other) == own
+        return member
+
+    def seek(j: mi.UInt32, lead: mi.UInt32) -> tuple[mi.UInt32, mi.UInt32]:
+        other = start + j
+        return j + 1, dr.select(same(other), other, lead)
+
+    _, lead = dr.while_loop(  # the lane itself is a member: every active lane finds one
+        (dr.zeros(mi.UInt32, lanes), dr.select(on, _NONE, lane)),
+        lambda j, lead: lead == _NONE, seek, mode="symbolic", labels=("j", "lead"),
+        label="multisample_lead")
+
+    def scan(j: mi.UInt32, best: mi.UInt32, best_dist: mi.Float
+             ) -> tuple[mi.UInt32, mi.UInt32, mi.Float]:
+        other = start + j
         d = dr.gather(mi.Float, dist, other)
         # The block is walked in lane order: ties keep the lower lane, and the
-        # first member is taken whatever its distance (NaN too): the lane itself
-        # is one, so every active lane has a representative.
-        better = member & ((best == _NONE) | (d < best_dist))
+        # first member (the lead) is taken whatever its distance (NaN too).
+        better = same(other) & ((best == _NONE) | (d < best_dist))
         return j + 1, dr.select(better, other, best), dr.select(better, d, best_dist)
 
-    _, rep, _ = dr.while_loop(
-        (dr.zeros(mi.UInt32, lanes), dr.full(mi.UInt32, _NONE, lanes),
+    leads = on & (lead == lane)
+    _, choice, _ = dr.while_loop(
+        (dr.select(leads, lane - start, group), dr.full(mi.UInt32, _NONE, lanes),
          dr.full(mi.Float, dr.inf, lanes)),
-        lambda j, best, best_dist: j < group, step, mode="symbolic",
+        lambda j, best, best_dist: j < group, scan, mode="symbolic",
         labels=("j", "best", "best_dist"), label="multisample_representatives")
+    rep = dr.gather(mi.UInt32, choice, dr.minimum(lead, lanes - 1))
     return dr.select(on, rep, _NONE)
 
 
