@@ -19,11 +19,12 @@ Traced instead (the reason said once at debug level on ``mcrt.render``):
 * ``MCRT_REPLAY=0``;
 * films of more than :data:`MAX_SUMS` sums (the copy costs more than tracing);
 * a sub-frame hook: motion blur updates the scene between passes, and replays
-  of scenes/effects/motion.xml's 16 sub-frames differed from tracing in 3 of 4
-  runs, in about 120 of 1536 pixels, where Dr.Jit recorded twice and replayed
-  a state the update had changed (in the run where it recorded again, they
-  were equal; moving meshes to arrays of their own memory instead of mapped
-  numpy arrays fixed a spinning cube alone, not the cube and the rolling ball);
+  of scenes/effects/motion.xml's 16 sub-frames differed from tracing in about
+  120 of 1536 pixels in the processes where Dr.Jit recorded the pass 2-3 times
+  instead of 6 (with the moved meshes in mapped numpy arrays, 3 of 4; with
+  arrays of their own memory, 0 of 15 on a warm kernel cache but 4 of 9 with
+  an empty one, ``auto_opaque`` on or off): a state the update changed is
+  replayed unseen, nondeterministically;
 * Mitsuba's samplers that keep random state per lane between passes
   (``stratified``, ``multijitter``, ...: only ``independent`` is seeded afresh
   by each pass);
