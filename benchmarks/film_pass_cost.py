@@ -70,7 +70,7 @@ def main() -> None:
         print(f"| {name} | {traced.per_unit * 1e3:.2f} (+-{traced.per_unit_se * 1e3:.2f}) | "
               f"{replayed.per_unit * 1e3:.2f} (+-{replayed.per_unit_se * 1e3:.2f}) | "
               f"{ratio:.2f} | {'PASS' if replayed.per_unit <= GOAL else 'FAIL'} |", flush=True)
-    print(f"\nrecordings: {pass_replay.recordings()} (one pass shape per pass count and sampler)")
+    print(f"\nrecordings: {pass_replay.RECORDINGS.count()} (one per pass shape and sampler)")
 
 
 if __name__ == "__main__":

@@ -81,8 +81,8 @@ class _Now:
 
 
 _NOW = _Now()
-_RECORDINGS = replay.Recordings(LIMIT)
-_FAILED: dict[tuple, str] = {}
+#: This process's recorded passes (:func:`mcrt.core.replay.clear` clears them).
+RECORDINGS = replay.Recordings(LIMIT)
 
 
 def _body(scene: mi.Scene, seed: Any, index: Any, sums: list[Any], nonfinite: Any,
@@ -146,9 +146,9 @@ class PassReplay:
 
     def run(self, accumulator: Accumulator, index: int) -> bool:
         """Add pass ``index`` into ``accumulator`` (a film's); False: trace it."""
-        if not isinstance(accumulator, FilmAccumulator) or self.kind in _FAILED:
+        if not isinstance(accumulator, FilmAccumulator) or self.kind in RECORDINGS.failed:
             return False
-        entry = _RECORDINGS.get(self.kind, lambda: (self.scene, dr.freeze(_body, warn_after=8)),
+        entry = RECORDINGS.get(self.kind, lambda: (self.scene, dr.freeze(_body, warn_after=8)),
                                 eager=self.eager)
         if entry is None:
             return False
@@ -170,9 +170,7 @@ class PassReplay:
                 dr.eval(sums, nonfinite, outputs)
             dr.sync_thread()
         except RuntimeError as error:  # what cannot be recorded is traced, from now on
-            _RECORDINGS.drop(self.kind)
-            _FAILED[self.kind] = replay.reason(error)
-            replay.note(f"passes of {sampler_name(self.sampler)}: {_FAILED[self.kind]}")
+            RECORDINGS.fail(self.kind, self.kind, error, f"passes of {sampler_name(self.sampler)}")
             return False
         finally:
             now.sampler = None
@@ -182,15 +180,4 @@ class PassReplay:
         return True
 
 
-def clear() -> None:
-    """Drop every recording (and the scenes they keep alive) and the failures."""
-    _RECORDINGS.clear()
-    _FAILED.clear()
-
-
-def recordings() -> int:
-    """How many times this process's replayed passes were recorded (traced)."""
-    return _RECORDINGS.count()
-
-
-__all__ = ["LIMIT", "MAX_SUMS", "PassReplay", "clear", "recordings", "why_not"]
+__all__ = ["LIMIT", "MAX_SUMS", "RECORDINGS", "PassReplay", "why_not"]

@@ -90,14 +90,18 @@ class Recordings:
     :meth:`get` answers None the first time it sees a key (trace that render:
     recording one made once would cost and gain nothing) and the entry made by
     ``make()`` from the second time on (it records, and later calls replay); at
-    most ``limit`` entries are kept, the least recently used dropped first. Film
-    renders (here) and adaptive wavefronts (:mod:`mcrt.render.adaptive.frozen`)
-    each keep one."""
+    most ``limit`` entries are kept, the least recently used dropped first; what
+    failed to record is remembered (:meth:`fail`, :attr:`failed`) and traced from
+    then on. Film renders (here), their passes one at a time
+    (:mod:`mcrt.core.pass_replay`) and adaptive wavefronts
+    (:mod:`mcrt.render.adaptive.frozen`) each keep one; :func:`clear` clears all."""
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
         self.entries: OrderedDict[tuple, Any] = OrderedDict()
         self.seen: OrderedDict[tuple, None] = OrderedDict()
+        self.failed: dict[tuple, str] = {}  # kinds that failed to record, and why
+        _EVERY.append(self)
 
     def get(self, key: tuple, make: Callable[[], Any], eager: bool = False) -> Any | None:
         if not eager and key not in self.seen and key not in self.entries:
@@ -113,12 +117,18 @@ class Recordings:
         self.entries.move_to_end(key)
         return entry
 
-    def drop(self, key: tuple) -> None:
+    def fail(self, key: tuple, kind: tuple, error: BaseException, what: str) -> str:
+        """The recording of ``key`` failed: drop it, remember ``kind`` (traced from
+        now on) and say why once (``what``: the renders concerned)."""
         self.entries.pop(key, None)
+        self.failed[kind] = reason(error)
+        note(f"{what}: {self.failed[kind]}")
+        return self.failed[kind]
 
     def clear(self) -> None:
         self.entries.clear()
         self.seen.clear()
+        self.failed.clear()
 
     def count(self) -> int:
         """How many times the kept frozen functions were recorded (each entry's last item)."""
@@ -126,8 +136,8 @@ class Recordings:
 
 
 _NOW = _Recording()
+_EVERY: list[Recordings] = []
 _RECORDINGS = Recordings(LIMIT)  # entries: (scene kept alive, frozen render)
-_FAILED: dict[tuple, str] = {}
 _NOTED: set[str] = set()
 
 
@@ -189,7 +199,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     in passes of ``shape``, recorded or replayed; None if it cannot be (then
     render it unfrozen)."""
     key = render_key(scene, sampler, shape, sensor, channels)
-    if key in _FAILED:
+    if key in _RECORDINGS.failed:
         return None
     entry = _RECORDINGS.get(key, lambda: (scene, dr.freeze(_body, warn_after=4)))
     if entry is None:  # a render made once is traced
@@ -207,9 +217,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
         dr.sync_thread()
         put_outputs(sampling_integrator(scene), outputs)
     except RuntimeError as error:  # what cannot be recorded renders unfrozen, from now on
-        _RECORDINGS.drop(key)
-        _FAILED[key] = reason(error)
-        note(f"{sampler_name(sampler)} cannot be replayed ({_FAILED[key]})")
+        _RECORDINGS.fail(key, key, error, f"{sampler_name(sampler)} cannot be replayed")
         return None
     finally:
         _NOW.sampler = None
@@ -226,8 +234,8 @@ def note(why: str) -> None:
 def clear() -> None:
     """Drop every recording (and the scenes they keep alive), and forget the
     failures and notes."""
-    _RECORDINGS.clear()
-    _FAILED.clear()
+    for recordings in _EVERY:
+        recordings.clear()
     _NOTED.clear()
 
 

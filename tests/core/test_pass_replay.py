@@ -4,7 +4,7 @@ Renders that a whole-render replay refuses (a progress bar over several passes,
 checkpoints, a resumed render, a cluster task's one pass) replay their passes
 one at a time (:mod:`mcrt.core.pass_replay`). Each case renders the same thing
 with ``MCRT_REPLAY=0`` and with replay on and compares the images (float32 bit
-patterns), the non-finite counts and the sums; :func:`pass_replay.recordings`
+patterns), the non-finite counts and the sums; :attr:`pass_replay.RECORDINGS`
 shows that the replayed side did record (and so replayed the other passes).
 """
 
@@ -36,11 +36,9 @@ MOST_RECORDINGS = 4
 
 @pytest.fixture(autouse=True)
 def _fresh():
-    replay.clear()
-    pass_replay.clear()
+    replay.clear()  # (every kind of recording)
     yield
     replay.clear()
-    pass_replay.clear()
 
 
 def _sampler(name: str, spp: int):
@@ -68,7 +66,7 @@ def test_a_render_with_a_progress_bar_replays_its_passes_with_the_same_bits(monk
         same_film(_render(monkeypatch, scene, name, seed, False, progress=True),
               _render(monkeypatch, scene, name, seed, True, progress=True))
     assert replay.recordings() == 0
-    assert 1 <= pass_replay.recordings() <= MOST_RECORDINGS
+    assert 1 <= pass_replay.RECORDINGS.count() <= MOST_RECORDINGS
 
 
 @pytest.mark.parametrize("case", ["gaussian", "aov"])
@@ -83,7 +81,7 @@ def test_filters_and_aovs_replay_their_passes_with_the_same_bits(monkeypatch, ca
     for seed in SEEDS:
         same_film(_render(monkeypatch, scene, "sobol", seed, False, progress=True),
               _render(monkeypatch, scene, "sobol", seed, True, progress=True))
-    assert pass_replay.recordings() >= 1
+    assert pass_replay.RECORDINGS.count() >= 1
 
 
 def test_checkpoints_and_a_resumed_render_replay_with_the_same_bits(monkeypatch):
@@ -106,7 +104,7 @@ def test_checkpoints_and_a_resumed_render_replay_with_the_same_bits(monkeypatch)
     resumed = _render(monkeypatch, scene, "jittered", 3, True,
                       checkpoints=Checkpointing(resume=middle))
     same_film(results[False], resumed)
-    assert pass_replay.recordings() >= 1
+    assert pass_replay.RECORDINGS.count() >= 1
 
 
 @pytest.mark.parametrize("name", ["sobol", "independent"])
@@ -123,7 +121,7 @@ def test_a_cluster_task_replays_its_pass_with_the_same_sums(monkeypatch, name):
         assert a.keys() == b.keys()
         for key in a:
             assert np.array_equal(a[key], b[key]), key
-    assert 1 <= pass_replay.recordings() <= MOST_RECORDINGS
+    assert 1 <= pass_replay.RECORDINGS.count() <= MOST_RECORDINGS
 
 
 def test_what_cannot_replay_its_passes_is_traced_and_says_why(monkeypatch, caplog):
@@ -143,7 +141,7 @@ def test_what_cannot_replay_its_passes_is_traced_and_says_why(monkeypatch, caplo
         monkeypatch.setattr(pass_replay, "MAX_SUMS", RES * RES * 4 - 1)  # this film's, less 1
         same_film(_render(monkeypatch, scene, "sobol", 1, False, progress=True),
               _render(monkeypatch, scene, "sobol", 1, True, progress=True))
-    assert pass_replay.recordings() == 0
+    assert pass_replay.RECORDINGS.count() == 0
     assert "passes: Mitsuba's stratified keeps random state per lane" in caplog.text
     assert f"passes: a film of more than {RES * RES * 4 - 1} sums" in caplog.text
     assert "passes: the scene moves between passes" in caplog.text

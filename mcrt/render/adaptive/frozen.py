@@ -57,9 +57,7 @@ class _Now:
 
 _NOW = _Now()
 #: Entries: (scene and integrator kept alive, frozen wavefront).
-_RECORDINGS = replay.Recordings(LIMIT)
-#: Kinds (keys but the batch size) that failed to record, and why.
-_FAILED: dict[tuple, str] = {}
+_RECORDINGS = replay.Recordings(LIMIT)  # (failures per kind: for every batch size)
 
 
 def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, seed: Any,
@@ -111,7 +109,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
     index = next(i for i, x in enumerate(scene.sensors()) if x is target.sensor)
     progressive = bool(getattr(sampler, "progressive", False))
     kind = _kind(scene, index, sampler, integrator, spp, acc, progressive)
-    if kind in _FAILED:  # for every batch size: one failed recording per process
+    if kind in _RECORDINGS.failed:  # one failed recording per process, for every batch size
         return None
     key = (*kind, m)
     entry = _RECORDINGS.get(key, lambda: (scene, integrator, dr.freeze(_body, warn_after=4)))
@@ -140,9 +138,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
                                      tables)
             pending = acc.pending(ids, m, prior, sums, moments)
     except RuntimeError as error:  # what cannot be recorded is traced, from now on
-        _RECORDINGS.drop(key)
-        _FAILED[kind] = replay.reason(error)
-        replay.note(f"adaptive wavefronts of {sampler_name(sampler)}: {_FAILED[kind]}")
+        _RECORDINGS.fail(key, kind, error, f"adaptive wavefronts of {sampler_name(sampler)}")
         return None
     finally:
         now.sampler = None
@@ -152,7 +148,6 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
 def clear() -> None:
     """Drop every recording (and the scenes they keep alive) and the failures."""
     _RECORDINGS.clear()
-    _FAILED.clear()
 
 
 def recordings() -> int:
