@@ -317,7 +317,7 @@ def run_passes(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator,
                 run.seconds += time.perf_counter() - start
 
             if replayer is not None:
-                with deferred_interrupts():  # the pass is added in place
+                with deferred_interrupts():  # the sums and the passes done change together
                     replayed = replayer.run(accumulator, index)
                     if replayed:
                         committed()

@@ -36,7 +36,6 @@ Traced instead (the reason said once at debug level on ``mcrt.render``):
 from __future__ import annotations
 
 import os
-import time
 from typing import Any
 
 import drjit as dr
@@ -87,8 +86,8 @@ RECORDINGS = replay.Recordings(LIMIT)
 
 def _body(scene: mi.Scene, seed: Any, index: Any, sums: list[Any], nonfinite: Any,
           tables: tuple) -> tuple[list[Any], Any, list[Any]]:
-    """Pass ``index`` of a render seeded with ``seed``, folded into ``sums`` and
-    ``nonfinite`` in place: what :func:`~mcrt.core.engine.run_passes` traces."""
+    """Pass ``index`` of a render seeded with ``seed``, folded into copies of
+    ``sums`` and ``nonfinite``: what :func:`~mcrt.core.engine.run_passes` traces."""
     now = _NOW
     shape = now.shape
     assert shape is not None
@@ -142,7 +141,6 @@ class PassReplay:
         self.sensor, self.channels, self.eager = sensor, channels, eager
         self.kind = replay.render_key(scene, sampler, (shape.lanes, shape.group, shape.spp),
                                       sensor, channels)
-        self.seconds = 0.0
 
     def run(self, accumulator: Accumulator, index: int) -> bool:
         """Add pass ``index`` into ``accumulator`` (a film's); False: trace it."""
@@ -155,7 +153,6 @@ class PassReplay:
         now = _NOW
         now.sampler, now.shape, now.sensor, now.channels = (self.sampler, self.shape,
                                                             self.sensor, self.channels)
-        start = time.perf_counter()
         # Drop the sampler's lane state out here: freed inside the recording, memory
         # that numpy arrays map would be released by a host callback, which Dr.Jit
         # cannot record (it aborts the process).
@@ -176,7 +173,6 @@ class PassReplay:
             now.sampler = None
         accumulator.sums, accumulator.nonfinite = list(sums), nonfinite
         replay.put_outputs(sampling_integrator(self.scene), outputs)
-        self.seconds += time.perf_counter() - start
         return True
 
 
