@@ -23,8 +23,8 @@ Traced instead (the reason said once at debug level on ``mcrt.render``):
   120 of 1536 pixels in the processes where Dr.Jit recorded the pass 2-3 times
   instead of 6 (with the moved meshes in mapped numpy arrays, 3 of 4; with
   arrays of their own memory, 0 of 15 on a warm kernel cache but 4 of 9 with
-  an empty one, ``auto_opaque`` on or off): a state the update changed is
-  replayed unseen, nondeterministically;
+  an empty one, ``auto_opaque`` on or off, with or without a sync after the
+  update): a state the update changed is replayed unseen, nondeterministically;
 * Mitsuba's samplers that keep random state per lane between passes
   (``stratified``, ``multijitter``, ...: only ``independent`` is seeded afresh
   by each pass);
