@@ -35,7 +35,6 @@ Traced instead (the reason said once at debug level on ``mcrt.render``):
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import drjit as dr
@@ -114,7 +113,7 @@ def why_not(scene: mi.Scene, sampler: mi.Sampler, subframes: object = None,
     """Why the passes of a film render of ``scene`` with ``sampler`` cannot be
     replayed one at a time (None: they can); ``subframes``: the render's
     sub-frame hook, if any; ``sums``: float64 values in the film's sums."""
-    if os.environ.get(replay.ENV, "1").strip() == "0":
+    if replay.switched_off():
         return f"{replay.ENV}=0"
     if sums > MAX_SUMS:
         return f"a film of more than {MAX_SUMS} sums (copying them costs more than tracing)"

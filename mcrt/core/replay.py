@@ -117,13 +117,12 @@ class Recordings:
         self.entries.move_to_end(key)
         return entry
 
-    def fail(self, key: tuple, kind: tuple, error: BaseException, what: str) -> str:
+    def fail(self, key: tuple, kind: tuple, error: BaseException, what: str) -> None:
         """The recording of ``key`` failed: drop it, remember ``kind`` (traced from
         now on) and say why once (``what``: the renders concerned)."""
         self.entries.pop(key, None)
         self.failed[kind] = reason(error)
         note(f"{what}: {self.failed[kind]}")
-        return self.failed[kind]
 
     def clear(self) -> None:
         self.entries.clear()
@@ -153,6 +152,11 @@ def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any
             take_outputs(sampling_integrator(scene)))
 
 
+def switched_off() -> bool:
+    """Whether ``MCRT_REPLAY=0`` switches every replay off."""
+    return os.environ.get(ENV, "1").strip() == "0"
+
+
 def replayable(integrator: Any) -> bool:
     """Whether ``integrator`` traces with device arrays only: Mitsuba's (C++)
     integrators and any that says so with ``replayable = True`` (mcrt's Python
@@ -178,7 +182,7 @@ def put_outputs(integrator: Any, values: list[Any]) -> None:
 def why_not(scene: mi.Scene, shape: PassShape, progress: bool, **kept: Any) -> str | None:
     """Why a render cannot be replayed (None: it can). ``kept``: the render's
     checkpoint, resume, sub-frame and task arguments (any not None refuses)."""
-    if os.environ.get(ENV, "1").strip() == "0":
+    if switched_off():
         return f"{ENV}=0"
     given = [name for name, value in kept.items() if value is not None]
     if given:
@@ -267,5 +271,5 @@ def reason(error: BaseException) -> str:
 
 
 __all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "put_outputs",
-           "reason", "recordings", "render", "render_key", "replayable", "take_outputs",
-           "why_not"]
+           "reason", "recordings", "render", "render_key", "replayable", "switched_off",
+           "take_outputs", "why_not"]

@@ -22,7 +22,6 @@ the scene's, and whatever fails to record (remembered for the process).
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import drjit as dr
@@ -83,7 +82,7 @@ def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, se
 
 def why_not(target: Target) -> str | None:
     """Why the wavefronts of a render cannot be replayed (None: they can)."""
-    if os.environ.get(replay.ENV, "1").strip() == "0":
+    if replay.switched_off():
         return f"{replay.ENV}=0"
     if not target.ours:
         return f"Mitsuba's {sampler_name(target.sampler)} is seeded per wavefront on the host"
