@@ -18,13 +18,15 @@ Traced instead (the reason said once at debug level on ``mcrt.render``):
 
 * ``MCRT_REPLAY=0``;
 * films of more than :data:`MAX_SUMS` sums (the copy costs more than tracing);
-* a sub-frame hook: motion blur updates the scene between passes, and replays
-  of scenes/effects/motion.xml's 16 sub-frames differed from tracing in about
-  120 of 1536 pixels in the processes where Dr.Jit recorded the pass 2-3 times
-  instead of 6 (with the moved meshes in mapped numpy arrays, 3 of 4; with
-  arrays of their own memory, 0 of 15 on a warm kernel cache but 4 of 9 with
-  an empty one, ``auto_opaque`` on or off, with or without a sync after the
-  update): a state the update changed is replayed unseen, nondeterministically;
+* a sub-frame hook (``on_pass``) that does not say ``replayable = True``: a
+  replayed kernel reads the arrays that shapes' methods use (through Dr.Jit's
+  virtual calls) at the addresses they had when it was recorded, so a scene
+  update between passes must leave them where they are. Motion blur's
+  :class:`~mcrt.render.motion.SubframeHook` writes moving meshes in place and
+  says why not where it cannot (an emitting mesh, a GPU); when it replaced the
+  vertex arrays instead, replays of scenes/effects/motion.xml read the
+  recording's address, right only in the sub-frames whose new array happened
+  to land there (every third);
 * Mitsuba's samplers that keep random state per lane between passes
   (``stratified``, ``multijitter``, ...: only ``independent`` is seeded afresh
   by each pass);
@@ -118,7 +120,10 @@ def why_not(scene: mi.Scene, sampler: mi.Sampler, subframes: object = None,
     if sums > MAX_SUMS:
         return f"a film of more than {MAX_SUMS} sums (copying them costs more than tracing)"
     if subframes is not None:
-        return "the scene moves between passes (sub-frames)"
+        replayable = getattr(subframes, "replayable", False)
+        if replayable is not True:
+            why = replayable if isinstance(replayable, str) else "a sub-frame hook"
+            return f"the scene moves between passes ({why})"
     if not (is_mcrt_sampler(sampler) or reseeds_each_pass(sampler)):
         return f"Mitsuba's {sampler_name(sampler)} keeps random state per lane"
     integrator = sampling_integrator(scene)

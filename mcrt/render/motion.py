@@ -52,8 +52,9 @@ geometry. mcrt adds it:
 
 from __future__ import annotations
 
+import ctypes
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import drjit as dr
@@ -263,11 +264,12 @@ class MotionDriver:
         self.motions = [m for m in motions if not m.is_static]
         self.times = None if times is None else np.asarray(times, dtype=np.float64)
         self._initial: list[_RigidShape | _MeshShape] = []
+        self._shapes: dict[str, mi.Shape] = {}
         self.time: float | None = None
         if not self.motions:  # nothing to move: no traversal of a large scene
             return
         self.params = mi.traverse(scene)
-        shapes = {s.id(): s for s in scene.shapes()}
+        shapes = self._shapes = {s.id(): s for s in scene.shapes()}
         for motion in self.motions:
             if motion.shape not in shapes:
                 raise SceneError(f"moving shape '{motion.shape}' is not a shape of the scene")
@@ -305,13 +307,45 @@ class MotionDriver:
             if isinstance(shape, _RigidShape):
                 self.params[f"{name}.to_world"] = shape.transform(mi.Matrix4f(m @ shape.to_world))
                 continue
-            moved = shape.positions @ m[:3, :3].T + m[:3, 3]
-            self.params[f"{name}.vertex_positions"] = mi.Float(moved.astype(np.float32).ravel())
+            self._write(f"{name}.vertex_positions", shape.positions @ m[:3, :3].T + m[:3, 3])
             if shape.normals is not None:
-                self.params[f"{name}.vertex_normals"] = mi.Float(
-                    (shape.normals @ m[:3, :3].T).astype(np.float32).ravel())
+                self._write(f"{name}.vertex_normals", shape.normals @ m[:3, :3].T)
         self.params.update()
         self.time = t
+
+    def _write(self, key: str, values: np.ndarray) -> None:
+        """Set the mesh array ``key`` to ``values``: on the CPU over its own memory,
+        so that the array keeps its address (see :meth:`replayable`)."""
+        flat = values.astype(np.float32).ravel()
+        current = self.params[key]
+        if dr.backend_v(current) != dr.JitBackend.LLVM:
+            self.params[key] = type(current)(flat)
+            return
+        dr.eval(current)
+        dr.sync_thread()  # no kernel still reads it
+        view = np.from_dlpack(current)  # the array's memory (read-only to numpy)
+        src = np.ascontiguousarray(flat, dtype=view.dtype)
+        if view.size != src.size:
+            raise SceneError(f"motion: {key} has {view.size} values, the pose {src.size}")
+        ctypes.memmove(view.__array_interface__["data"][0], src.ctypes.data, src.nbytes)
+        self.params.set_dirty(key)
+
+    @property
+    def replayable(self) -> bool | str:
+        """True where passes replayed by Dr.Jit's frozen functions see each
+        sub-frame's scene (else why not). A replayed kernel reads the arrays
+        that shapes' methods use at the addresses they had when it was recorded,
+        so an update must keep them where they are: moving meshes are written in
+        place (on the CPU) and rigid shapes change only single values; an
+        emitting mesh rebuilds its area distribution into new arrays."""
+        for shape in self._initial:
+            if isinstance(shape, _MeshShape):
+                key = f"{shape.motion.shape}.vertex_positions"
+                if dr.backend_v(self.params[key]) != dr.JitBackend.LLVM:
+                    return "moving meshes are updated in place on the CPU only"
+                if self._shapes[shape.motion.shape].is_emitter():
+                    return f"the moving mesh '{shape.motion.shape}' emits light"
+        return True
 
     def on_pass(self, index: int, count: int) -> None:
         """``render_film``'s hook: sub-frame ``index`` of ``count`` shows time ``times[index]``."""
@@ -320,9 +354,22 @@ class MotionDriver:
                              f"{0 if self.times is None else len(self.times)} sub-frame times")
         self.set_time(float(self.times[index]))
 
-    def hook(self) -> Callable[[int, int], None] | None:
-        """``on_pass`` if anything moves, else None (a static render needs no hook)."""
-        return self.on_pass if self._initial else None
+    def hook(self) -> SubframeHook | None:
+        """The sub-frame hook if anything moves, else None (a static render needs no hook)."""
+        return SubframeHook(self) if self._initial else None
+
+
+class SubframeHook:
+    """``render_film``'s ``on_pass(index, count)`` for a moving scene; its
+    ``replayable`` says whether the passes may be replayed (see
+    :attr:`MotionDriver.replayable`)."""
+
+    def __init__(self, driver: MotionDriver) -> None:
+        self.driver = driver
+        self.replayable = driver.replayable
+
+    def __call__(self, index: int, count: int) -> None:
+        self.driver.on_pass(index, count)
 
 
 def _matrix(transform: mi.ScalarTransform4f | mi.Transform4f) -> np.ndarray:

@@ -9,7 +9,7 @@ import mitsuba as mi
 
 from ...core.sampling import make_sampler, quiet_sampler_warnings, sampler_name
 from ...errors import McrtError
-from ..motion import Motion, MotionDriver, subframe_count, subframe_times
+from ..motion import Motion, MotionDriver, SubframeHook, subframe_count, subframe_times
 from .model import RenderPlan
 
 #: Prefix of the note a schedule adds when sub-frames are too far apart.
@@ -72,7 +72,7 @@ class PlannedScene:
         times = subframe_times(n, t0, t1, sampler, seed, mode=time_mode)
         self.driver.times = times
         self.plan.subframes, self.plan.subframe_times = n, [float(t) for t in times]
-        return n, self.driver.on_pass
+        return n, SubframeHook(self.driver)
 
     def _note_gap(self, spp: int, n: int, forced: bool) -> None:
         """Note (once) when ``n`` sub-frames of the default count are further
