@@ -86,16 +86,63 @@ def test_filters_aovs_and_several_passes_replay_the_same_bits(monkeypatch, case)
 
 def test_a_scene_edited_between_renders_is_rendered_as_edited(monkeypatch):
     """A parameter changed with mi.traverse between renders: the replay uses the
-    new value (Dr.Jit sees the change and records again)."""
+    new value (the same bits as tracing, and not the image before the edit)."""
     scene = small_cornell(16, box_filter=True)
     _compare(monkeypatch, scene, "jittered")
+    before = _render(monkeypatch, scene, "jittered", 4, SEEDS[0], True)
     params = mi.traverse(scene)
     key = next(k for k in params.keys() if k.endswith("reflectance.value"))
     params[key] = mi.Color3f(0.9, 0.1, 0.1)
     params.update()
-    before = replay.recordings()
     _compare(monkeypatch, scene, "jittered")
-    assert replay.recordings() > before
+    after = _render(monkeypatch, scene, "jittered", 4, SEEDS[0], True)
+    assert not np.array_equal(before.image, after.image)
+    assert replay.recordings() >= 1
+
+
+def test_a_mesh_moved_between_renders_is_rendered_where_it_is(monkeypatch):
+    """A mesh's vertices set to a new array through mi.traverse between renders
+    (an animation, a parameter sweep): a replay would read the vertex array it
+    was recorded with at its old address (every other frame was wrong before the
+    scene's arrays were checked; here the old arrays are kept, so every one
+    would be). The frame after a move is traced; another seed of it replays."""
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=24, height=24, rfilter={"type": "box"})
+    d["box"] = {"type": "cube", "bsdf": {"type": "diffuse"},
+                "to_world": mi.ScalarTransform4f().translate([0.2, -0.5, 0]).scale(0.3)}
+    scene = mi.load_dict(d)
+    params = mi.traverse(scene)
+    rest = np.array(params["box.vertex_positions"]).reshape(-1, 3)
+    old = []  # earlier frames' arrays stay alive: a new one never lands at their address
+    for frame in range(6):
+        old.append(params["box.vertex_positions"])
+        params["box.vertex_positions"] = mi.Float(
+            (rest + [0.05 * frame, 0.0, 0.0]).astype(np.float32).ravel())
+        params.update()
+        for seed in (frame, frame + 10):  # the second seed of a frame replays
+            same_film(_render(monkeypatch, scene, "sobol", 4, seed, False),
+                      _render(monkeypatch, scene, "sobol", 4, seed, True))
+    assert replay.recordings() >= 1
+
+
+def test_a_recording_is_kept_only_with_the_arrays_it_was_recorded_with():
+    """Recordings.get: traced the first time, recorded the second; a call with
+    another array (a new vertex buffer) drops the entry and is traced; the entry
+    holds its arrays, so a new array cannot take their variable index."""
+    made = []
+    recordings = replay.Recordings(4)
+    first = [mi.Float([1.0, 2.0, 3.0])]
+    dr.eval(first)
+    assert recordings.get(("k",), lambda: made.append(1) or ("entry",), arrays=first) is None
+    assert recordings.get(("k",), lambda: made.append(1) or ("entry",), arrays=first) == ("entry",)
+    held = first[0].index
+    del first  # only the entry holds it now
+    second = [mi.Float([1.0, 2.0, 4.0])]
+    dr.eval(second)
+    assert second[0].index != held
+    assert recordings.get(("k",), lambda: made.append(2) or ("again",), arrays=second) is None
+    assert recordings.get(("k",), lambda: made.append(2) or ("again",), arrays=second) == ("again",)
+    assert made == [1, 2]
 
 
 def test_what_cannot_be_replayed_renders_unfrozen(monkeypatch, caplog):

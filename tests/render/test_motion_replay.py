@@ -1,13 +1,12 @@
 """Motion blur's sub-frames replayed one at a time give the bits of traced ones.
 
-A replayed pass (:mod:`mcrt.core.pass_replay`) reads the arrays that shapes'
-methods use at the addresses they had when it was recorded, so the sub-frame
-hook writes moving meshes over their own memory. When it replaced the vertex
-arrays instead, the replayed passes of scenes/effects/motion.xml were right
-only where the new array landed at the recording's address (every third
-sub-frame); the comparisons below fail that way. Each case renders with
-``MCRT_REPLAY=0`` and with replay on and compares float32 bit patterns;
-:attr:`pass_replay.RECORDINGS` shows that the replayed side did record.
+The sub-frame hook writes moving meshes over their own memory. When it set the
+vertex arrays to new ones instead, the replayed passes of
+scenes/effects/motion.xml were right only where the new array landed at the
+recording's address (every third sub-frame); now a new array would make every
+sub-frame record again (:func:`mcrt.core.replay.scene_arrays`), which the
+``made == 1`` checks catch. Each case renders with ``MCRT_REPLAY=0`` and with
+replay on and compares float32 bit patterns.
 """
 
 from __future__ import annotations
@@ -128,6 +127,7 @@ def test_a_moving_scene_replays_its_subframes_with_the_same_bits(monkeypatch, tm
     assert pass_replay.RECORDINGS.count() == 0
     same_film(plain, _render(monkeypatch, path, sampler, True))
     assert 1 <= pass_replay.RECORDINGS.count() <= MOST_RECORDINGS
+    assert pass_replay.RECORDINGS.made == 1  # one recording, replayed by the other sub-frames
 
 
 def test_cluster_tasks_of_a_moving_scene_replay_with_the_same_bits(monkeypatch):
@@ -139,6 +139,7 @@ def test_cluster_tasks_of_a_moving_scene_replay_with_the_same_bits(monkeypatch):
         monkeypatch.setenv(replay.ENV, "1" if on else "0")
         sums[on] = [render_film_pass(scene, spl, i, SUBFRAMES, seed=3, on_pass=hook)
                     for i in range(SUBFRAMES)]
+    assert pass_replay.RECORDINGS.made == 1
     for a, b in zip(sums[False], sums[True], strict=True):
         for key in a:
             assert np.array_equal(a[key], b[key]), key

@@ -111,7 +111,8 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
     if kind in _RECORDINGS.failed:  # one failed recording per process, for every batch size
         return None
     key = (*kind, m)
-    entry = _RECORDINGS.get(key, lambda: (scene, integrator, dr.freeze(_body, warn_after=4)))
+    entry = _RECORDINGS.get(key, lambda: (scene, integrator, dr.freeze(_body, warn_after=4)),
+                            arrays=replay.scene_arrays(scene))
     if entry is None:  # traced the first time
         return None
     check_passes(k, m)
