@@ -140,22 +140,18 @@ class PassReplay:
     does, and the next one records."""
 
     def __init__(self, scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int,
-                 sensor: int, channels: int, eager: bool, moving: bool = False) -> None:
+                 sensor: int, channels: int, eager: bool) -> None:
         self.scene, self.sampler, self.shape, self.seed = scene, sampler, shape, seed
-        self.sensor, self.channels, self.eager, self.moving = sensor, channels, eager, moving
+        self.sensor, self.channels, self.eager = sensor, channels, eager
         self.kind = replay.render_key(scene, sampler, (shape.lanes, shape.group, shape.spp),
                                       sensor, channels)
-        #: replay.scene_arrays: at the first pass, or at every pass of a moving scene
-        self.arrays: list[Any] | None = None
 
     def run(self, accumulator: Accumulator, index: int) -> bool:
         """Add pass ``index`` into ``accumulator`` (a film's); False: trace it."""
         if not isinstance(accumulator, FilmAccumulator) or self.kind in RECORDINGS.failed:
             return False
-        if self.arrays is None or self.moving:
-            self.arrays = replay.scene_arrays(self.scene)
         entry = RECORDINGS.get(self.kind, lambda: (self.scene, dr.freeze(_body, warn_after=8)),
-                                eager=self.eager, arrays=self.arrays)
+                                eager=self.eager, scene=self.scene)
         if entry is None:
             return False
         now = _NOW

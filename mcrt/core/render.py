@@ -354,8 +354,7 @@ def _pass_replay(scene: mi.Scene, sampler: mi.Sampler, run: PassRun, seed: int, 
         return None
     if eager is None:
         eager = run.shape.passes - run.done >= 3
-    return PassReplay(scene, sampler, run.shape, seed, sensor, accumulator.channels, eager,
-                      moving=subframes is not None)
+    return PassReplay(scene, sampler, run.shape, seed, sensor, accumulator.channels, eager)
 
 
 def _add_sums(total: dict[str, np.ndarray] | None,

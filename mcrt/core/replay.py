@@ -90,7 +90,7 @@ class Recordings:
     :meth:`get` answers None the first time it sees a key (trace that render:
     recording one made once would cost and gain nothing) and the entry made by
     ``make()`` from the second time on (it records, and later calls replay), for
-    as long as the scene has the arrays it was recorded with (:func:`scene_arrays`); at
+    as long as the scene has the arrays it was recorded with (:class:`SceneArrays`); at
     most ``limit`` entries are kept, the least recently used dropped first; what
     failed to record is remembered (:meth:`fail`, :attr:`failed`) and traced from
     then on. Film renders (here), their passes one at a time
@@ -99,22 +99,24 @@ class Recordings:
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
-        #: key -> (the scene's array indices, the arrays, the entry)
-        self.entries: OrderedDict[tuple, tuple[tuple, list[Any], Any]] = OrderedDict()
+        #: key -> (the scene's array indices, the arrays, their SceneArrays, the entry)
+        self.entries: OrderedDict[tuple, tuple[tuple, list[Any], Any, Any]] = OrderedDict()
         self.seen: OrderedDict[tuple, None] = OrderedDict()  # (key, state) traced once
         self.failed: dict[tuple, str] = {}  # kinds that failed to record, and why
         self.made = 0  # entries made (recordings started) since the last clear
         _EVERY.append(self)
 
     def get(self, key: tuple, make: Callable[[], Any], eager: bool = False,
-            arrays: list[Any] | None = None) -> Any | None:
-        """The entry of ``key`` (None: trace this call); ``arrays``: the scene's
-        :func:`scene_arrays` now. An entry recorded with other arrays is dropped
-        and this call traced; an entry holds the arrays it was recorded with, so
-        that a new array never takes their (reused) variable index."""
-        arrays = arrays or []
-        state = tuple(dr.detail.collect_indices(arrays))
+            scene: mi.Scene | None = None) -> Any | None:
+        """The entry of ``key`` (None: trace this call). An entry recorded while
+        ``scene`` had other :class:`SceneArrays` is dropped and this call traced;
+        an entry holds the arrays it was recorded with, so that a new array never
+        takes their (reused) variable index."""
         held = self.entries.get(key)
+        traversal = (None if scene is None else
+                     held[2] if held is not None else SceneArrays(scene))
+        arrays = traversal.now() if traversal is not None else []
+        state = tuple(dr.detail.collect_indices(arrays))
         if held is not None and held[0] != state:
             del self.entries[key]
             held = None
@@ -124,12 +126,12 @@ class Recordings:
                 while len(self.seen) > 4 * self.limit:
                     self.seen.popitem(last=False)
                 return None
-            held = self.entries[key] = (state, arrays, make())
+            held = self.entries[key] = (state, arrays, traversal, make())
             self.made += 1
             while len(self.entries) > self.limit:
                 self.entries.popitem(last=False)
         self.entries.move_to_end(key)
-        return held[2]
+        return held[3]
 
     def fail(self, key: tuple, kind: tuple, error: BaseException, what: str) -> None:
         """The recording of ``key`` failed: drop it, remember ``kind`` (traced from
@@ -146,16 +148,13 @@ class Recordings:
 
     def count(self) -> int:
         """How many times the kept frozen functions were recorded (each entry's last item)."""
-        return sum(int(getattr(held[2][-1], "n_recordings", 0)) for held in self.entries.values())
+        return sum(int(getattr(held[3][-1], "n_recordings", 0)) for held in self.entries.values())
 
 
 _NOW = _Recording()
 _EVERY: list[Recordings] = []
 _RECORDINGS = Recordings(LIMIT)  # entries: (scene kept alive, frozen render)
 _NOTED: set[str] = set()
-#: Scenes whose parameters :func:`scene_arrays` keeps (each keeps its scene alive).
-TRAVERSED = 4
-_TRAVERSED: OrderedDict[int, tuple[mi.Scene, Any, list[str]]] = OrderedDict()
 
 
 def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any], list[Any]]:
@@ -170,27 +169,27 @@ def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any
             take_outputs(sampling_integrator(scene)))
 
 
-def scene_arrays(scene: mi.Scene) -> list[Any]:
-    """The scene's parameters (``mi.traverse``) that are Dr.Jit arrays of more
-    or fewer than one value: vertex buffers, textures, volumes. A recording is replayed
-    only while they are the arrays it was recorded with (written over in place,
-    as motion blur moves meshes, is fine): after a parameter was set to a new
-    array through ``mi.traverse``, replays of a moved mesh were sometimes (on a
-    cold kernel cache) right only where the new array landed at the old one's
-    address (tests/core/test_replay.py). Single values are replayed as they are
-    now. The traversal is kept for the last few scenes (its parameters read the
-    scene's current values): 3 us a call instead of 0.1-0.2 ms."""
-    held = _TRAVERSED.get(id(scene))
-    if held is None or held[0] is not scene:
-        params = mi.traverse(scene)
-        wide = [key for key in params.keys()
-                if dr.is_jit_v(params[key]) and dr.width(params[key]) != 1]
-        held = _TRAVERSED[id(scene)] = (scene, params, wide)
-        while len(_TRAVERSED) > TRAVERSED:
-            _TRAVERSED.popitem(last=False)
-    _TRAVERSED.move_to_end(id(scene))
-    _, params, wide = held
-    return [params[key] for key in wide]
+class SceneArrays:
+    """A scene's parameters (``mi.traverse``) that are Dr.Jit arrays of other
+    than one value: vertex buffers, textures, volumes; :meth:`now` reads them.
+
+    A recording is replayed only while they are the arrays it was recorded with
+    (written over in place, as motion blur moves meshes, is fine): after a
+    parameter was set to a new array through ``mi.traverse``, replays of a moved
+    mesh were sometimes (on a cold kernel cache) right only where the new array
+    landed at the old one's address (tests/core/test_replay.py). Single values
+    are replayed as they are now. A recording keeps its scene's traversal (the
+    parameters read the scene's current values: 3 us a call where traversing
+    takes 0.1-0.2 ms); nothing else keeps one, as a scene kept alive stays in
+    Dr.Jit's registry, where its plugins are traced with every other scene's."""
+
+    def __init__(self, scene: mi.Scene) -> None:
+        self.params = mi.traverse(scene)
+        self.keys = [key for key in self.params.keys()
+                     if dr.is_jit_v(self.params[key]) and dr.width(self.params[key]) != 1]
+
+    def now(self) -> list[Any]:
+        return [self.params[key] for key in self.keys]
 
 
 def switched_off() -> bool:
@@ -247,7 +246,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     if key in _RECORDINGS.failed:
         return None
     entry = _RECORDINGS.get(key, lambda: (scene, dr.freeze(_body, warn_after=4)),
-                            arrays=scene_arrays(scene))
+                            scene=scene)
     if entry is None:  # a render made once (of this scene's arrays) is traced
         return None
     _NOW.sampler, _NOW.shape, _NOW.sensor, _NOW.channels = sampler, shape, sensor, channels
@@ -283,7 +282,6 @@ def clear() -> None:
     for recordings in _EVERY:
         recordings.clear()
     _NOTED.clear()
-    _TRAVERSED.clear()
 
 
 def recordings() -> int:
@@ -314,5 +312,5 @@ def reason(error: BaseException) -> str:
 
 
 __all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "put_outputs",
-           "reason", "recordings", "render", "render_key", "replayable", "scene_arrays",
+           "SceneArrays", "reason", "recordings", "render", "render_key", "replayable",
            "switched_off", "take_outputs", "why_not"]

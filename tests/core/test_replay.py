@@ -126,23 +126,30 @@ def test_a_mesh_moved_between_renders_is_rendered_where_it_is(monkeypatch):
 
 
 def test_a_recording_is_kept_only_with_the_arrays_it_was_recorded_with():
-    """Recordings.get: traced the first time, recorded the second; a call with
-    another array (a new vertex buffer) drops the entry and is traced; the entry
-    holds its arrays, so a new array cannot take their variable index."""
+    """Recordings.get: traced the first time, recorded the second; a call after
+    a scene array was set to a new one (a new vertex buffer) drops the entry and
+    is traced; the entry holds its arrays, so a new array cannot take their
+    variable index."""
     made = []
     recordings = replay.Recordings(4)
-    first = [mi.Float([1.0, 2.0, 3.0])]
-    dr.eval(first)
-    assert recordings.get(("k",), lambda: made.append(1) or ("entry",), arrays=first) is None
-    assert recordings.get(("k",), lambda: made.append(1) or ("entry",), arrays=first) == ("entry",)
-    held = first[0].index
-    del first  # only the entry holds it now
-    second = [mi.Float([1.0, 2.0, 4.0])]
-    dr.eval(second)
-    assert second[0].index != held
-    assert recordings.get(("k",), lambda: made.append(2) or ("again",), arrays=second) is None
-    assert recordings.get(("k",), lambda: made.append(2) or ("again",), arrays=second) == ("again",)
-    assert made == [1, 2]
+    d = mi.cornell_box()
+    d["box"] = {"type": "cube"}
+    scene = mi.load_dict(d)
+    params = mi.traverse(scene)
+
+    def get(tag: str):
+        return recordings.get(("k",), lambda: made.append(tag) or (tag,), scene=scene)
+
+    assert get("a") is None and get("a") == ("a",) and get("a") == ("a",)
+    held = params["box.vertex_positions"].index
+    params["box.vertex_positions"] = mi.Float(np.array(params["box.vertex_positions"]) + 0.1)
+    params.update()  # the old array: only the entry holds it now
+    assert params["box.vertex_positions"].index != held
+    assert get("b") is None and get("b") == ("b",) and get("b") == ("b",)
+    params["white.reflectance.value"] = mi.Color3f(0.5, 0.5, 0.5)  # a single value
+    params.update()
+    assert get("c") == ("b",)
+    assert made == ["a", "b"]
 
 
 def test_what_cannot_be_replayed_renders_unfrozen(monkeypatch, caplog):

@@ -4,7 +4,7 @@ The sub-frame hook writes moving meshes over their own memory. When it set the
 vertex arrays to new ones instead, the replayed passes of
 scenes/effects/motion.xml were right only where the new array landed at the
 recording's address (every third sub-frame); now a new array would make every
-sub-frame record again (:func:`mcrt.core.replay.scene_arrays`), which the
+sub-frame record again (:class:`mcrt.core.replay.SceneArrays`), which the
 ``made == 1`` checks catch. Each case renders with ``MCRT_REPLAY=0`` and with
 replay on and compares float32 bit patterns.
 """

@@ -112,7 +112,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
         return None
     key = (*kind, m)
     entry = _RECORDINGS.get(key, lambda: (scene, integrator, dr.freeze(_body, warn_after=4)),
-                            arrays=replay.scene_arrays(scene))
+                            scene=scene)
     if entry is None:  # traced the first time
         return None
     check_passes(k, m)
