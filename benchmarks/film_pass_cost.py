@@ -8,10 +8,11 @@ its own. Each render has a progress bar (off screen), as ``mcrt render`` has, so
 its passes are replayed one at a time (:mod:`mcrt.core.pass_replay`) unless
 ``MCRT_REPLAY=0``; both sides run in this process, interleaved by the timing
 protocol (:func:`mcrt.core.timing.run_interleaved`, one warm-up each). Goal:
-<= 1 ms per pass.
+<= 1 ms per pass. ``--motion``: scenes/effects/motion.xml instead, one motion
+sub-frame per pass (the ball and the cube move before each pass).
 
     python benchmarks/film_pass_cost.py [--res 64] [--spp 64] [--rounds 9] 2>/dev/null
-                                        [--samplers sobol independent]
+                                        [--samplers sobol independent] [--motion]
 """
 
 from __future__ import annotations
@@ -31,8 +32,11 @@ from mcrt.core import pass_replay, replay  # noqa: E402
 from mcrt.core.render import render_film  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
 from mcrt.core.timing import fit_cost, run_interleaved  # noqa: E402
+from mcrt.render.plan import plan_scene  # noqa: E402
 
-CORNELL = Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"
+ROOT = Path(__file__).resolve().parents[1]
+CORNELL = ROOT / "scenes" / "cornell_box.xml"
+MOTION = ROOT / "scenes" / "effects" / "motion.xml"
 GOAL = 1e-3
 
 
@@ -42,20 +46,30 @@ def main() -> None:
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--rounds", type=int, default=9)
     parser.add_argument("--samplers", nargs="+", default=["sobol", "independent"])
+    parser.add_argument("--motion", action="store_true",
+                        help="scenes/effects/motion.xml, a motion sub-frame per pass")
     args = parser.parse_args()
-    text = CORNELL.read_text().replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>')
-    scene = mi.load_string(text, res=str(args.res), spp=str(args.spp))
+    planned = (plan_scene(MOTION, params={"width": str(args.res), "height": str(args.res)})
+               if args.motion else None)
+    if planned is not None:
+        scene = planned.scene
+    else:
+        text = CORNELL.read_text().replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>')
+        scene = mi.load_string(text, res=str(args.res), spp=str(args.spp))
     counts = [p for p in (2, 4, 8, 16, 32, 64, 128) if p <= args.spp and args.spp % p == 0]
     seeds = iter(range(1 << 30))
 
     def case(name: str, passes: int, on: bool):
         def run() -> None:
             os.environ[replay.ENV] = "1" if on else "0"
-            render_film(scene, make_sampler(name, args.spp), seed=next(seeds), passes=passes,
-                        progress=True)
+            sampler, seed, hook = make_sampler(name, args.spp), next(seeds), None
+            if planned is not None:  # one sub-frame per pass
+                _, hook = planned.schedule(sampler, args.spp, seed, subframes=passes)
+            render_film(scene, sampler, seed=seed, passes=passes, progress=True, on_pass=hook)
         return run
 
-    print(f"Cornell box {args.res}^2, box filter, {args.spp} spp in {counts} passes; "
+    what = "motion.xml (a sub-frame per pass)" if args.motion else "Cornell box"
+    print(f"{what} {args.res}^2, box filter, {args.spp} spp in {counts} passes; "
           f"{args.rounds} rounds, medians", flush=True)
     print("\n| sampler | traced: ms per pass (+-SE) | replayed: ms per pass (+-SE) | "
           "replayed / traced, whole render at the most passes | goal <= 1 ms |")
