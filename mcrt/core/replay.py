@@ -37,7 +37,8 @@ import logging
 import os
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -121,7 +122,7 @@ class Recordings:
             del self.entries[key]
             held = None
         if held is None:
-            if not eager and (key, state) not in self.seen:
+            if not (eager or _WARMING) and (key, state) not in self.seen:
                 self.seen[(key, state)] = None
                 while len(self.seen) > 4 * self.limit:
                     self.seen.popitem(last=False)
@@ -155,6 +156,21 @@ _NOW = _Recording()
 _EVERY: list[Recordings] = []
 _RECORDINGS = Recordings(LIMIT)  # entries: (scene kept alive, frozen render)
 _NOTED: set[str] = set()
+_WARMING = False  # see warming_up()
+
+
+@contextmanager
+def warming_up() -> Iterator[None]:
+    """Renders in this block warm their kind up: recorded at once instead of
+    traced, so that every render of the kind after the block replays. For an
+    untimed warm-up before timed renders (a study cell's, the timing
+    protocol's): without it the first timed render of each kind recorded."""
+    global _WARMING
+    before, _WARMING = _WARMING, True
+    try:
+        yield
+    finally:
+        _WARMING = before
 
 
 def _body(scene: mi.Scene, seed: Any, tables: tuple) -> tuple[Any, Any, list[Any], list[Any]]:
@@ -313,4 +329,4 @@ def reason(error: BaseException) -> str:
 
 __all__ = ["ENV", "LIMIT", "MAX_PASSES", "Recordings", "Replayed", "clear", "note", "put_outputs",
            "SceneArrays", "reason", "recordings", "render", "render_key", "replayable",
-           "switched_off", "take_outputs", "why_not"]
+           "switched_off", "take_outputs", "warming_up", "why_not"]

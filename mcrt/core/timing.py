@@ -143,12 +143,16 @@ def run_interleaved(cases: Sequence[Callable[[], Any]], rounds: int, warmup: int
                     ) -> list[list[Sample]]:
     """The protocol for callables in this process: ``warmup`` untimed calls of
     each case, then ``rounds`` rounds in shuffled order; the samples per case,
-    in round order."""
-    for _ in range(warmup):
-        for case in cases:
-            case()
-            if sync is not None:
-                sync()
+    in round order. Renders in the warm-up are recorded for replay at once
+    (:func:`mcrt.core.replay.warming_up`), so no timed call records."""
+    from .replay import warming_up  # (replay imports the engine: not at module load)
+
+    with warming_up():
+        for _ in range(warmup):
+            for case in cases:
+                case()
+                if sync is not None:
+                    sync()
     samples: list[list[Sample]] = [[] for _ in cases]
     for order in round_orders(len(cases), rounds, seed):
         for i in order:

@@ -152,6 +152,24 @@ def test_a_recording_is_kept_only_with_the_arrays_it_was_recorded_with():
     assert made == ["a", "b"]
 
 
+def test_a_warm_up_records_so_that_every_render_after_it_replays(monkeypatch):
+    """replay.warming_up(): the first render of a kind records at once (a
+    study's untimed warm-up), so the first timed render replays instead of
+    recording; the same bits."""
+    scene = small_cornell(16, box_filter=True)
+    with replay.warming_up():
+        _render(monkeypatch, scene, "sobol", 4, SEEDS[0], True)
+    assert replay._RECORDINGS.made == 1 and replay.recordings() >= 1
+    for seed in SEEDS[1:]:
+        same_film(_render(monkeypatch, scene, "sobol", 4, seed, False),
+                  _render(monkeypatch, scene, "sobol", 4, seed, True))
+    assert replay._RECORDINGS.made == 1
+    monkeypatch.setenv(replay.ENV, "1")
+    replay.clear()
+    _render(monkeypatch, scene, "sobol", 4, SEEDS[0], True)  # no warm-up: traced
+    assert replay._RECORDINGS.made == 0
+
+
 def test_what_cannot_be_replayed_renders_unfrozen(monkeypatch, caplog):
     """Sub-frames (the scene changes between passes) and checkpoints: no
     recording of the whole render, the same bits, a debug note (checkpointed

@@ -76,11 +76,11 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
     """Task ``index`` of a group: one render of a cell, rendered as ``mcrt render``
     renders it, timed by :func:`mcrt.core.timing.timed`, and (in a scored round)
     scored against ``reference`` (the mean image). The first task of a cell in a
-    process first renders an untimed warm-up (kernels compiled and cached), so
-    every timed render is warm."""
+    process first renders an untimed warm-up (kernels compiled and cached, the
+    render recorded for replay), so every timed render is warm."""
     import drjit as dr
 
-    from ...core import render  # looked up now: tests wrap render_film
+    from ...core import render, replay  # looked up now: tests wrap render_film
     from ...core.sampling import make_sampler, quiet_sampler_warnings
     from ...render.loaded import planned_scene
 
@@ -97,7 +97,8 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
                                   on_pass=move)
 
     if cell not in _warmed:
-        run(WARMUP_SEED)  # untimed
+        with replay.warming_up():  # recorded now: every timed render replays
+            run(WARMUP_SEED)  # untimed
         _warmed.add(cell)
     seed = task.seeds[r % len(task.seeds)]
     rendered, sample = timed(lambda: run(seed), dr.sync_thread)
