@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import errno
 import resource
+import time
 from pathlib import Path
 
 from ..errors import McrtError
@@ -145,24 +146,45 @@ def _cgroup_dir() -> Path | None:
         if len(parts) != 3:
             continue
         if parts[0] == "0" and parts[1] == "":
-            return Path("/sys/fs/cgroup") / parts[2].lstrip("/")
+            return CGROUP_ROOT / parts[2].lstrip("/")
         if "memory" in parts[1].split(","):
-            return Path("/sys/fs/cgroup/memory") / parts[2].lstrip("/")
+            return CGROUP_ROOT / "memory" / parts[2].lstrip("/")
     return None
 
 
-def _cgroup_left() -> int | None:
+#: Where cgroup file systems are mounted.
+CGROUP_ROOT = Path("/sys/fs/cgroup")
+#: Seconds for which the cgroup levels that limit memory (and their limits) are
+#: reused: finding them reads ~18 files (0.14 ms, a sixth of a replayed
+#: study-sized render); the usage of the limited levels is read at every call.
+LIMITS_TTL = 5.0
+_limits: tuple[float, list[tuple[Path, int]]] | None = None
+
+
+def _limited_levels() -> list[tuple[Path, int]]:
+    """The cgroup levels with a memory limit and their limits, this one and its
+    parents (a parent's limit binds as well: containers often limit a parent)."""
+    global _limits
+    now = time.monotonic()
+    if _limits is not None and now - _limits[0] < LIMITS_TTL:
+        return _limits[1]
     directory = _cgroup_dir()
-    if directory is None:
-        return None
-    left = None
-    # Walk up: a parent's limit binds as well (containers often limit a parent).
-    for level in [directory, *directory.parents]:
-        if not str(level).startswith("/sys/fs/cgroup"):
+    levels: list[tuple[Path, int]] = []
+    for level in [] if directory is None else [directory, *directory.parents]:
+        if not level.is_relative_to(CGROUP_ROOT):
             break
         limit = _read_int(level / "memory.max") or _read_int(level / "memory.limit_in_bytes")
+        if limit is not None and limit < 1 << 60:
+            levels.append((level, limit))
+    _limits = (now, levels)
+    return levels
+
+
+def _cgroup_left() -> int | None:
+    left = None
+    for level, limit in _limited_levels():
         used = _read_int(level / "memory.current") or _read_int(level / "memory.usage_in_bytes")
-        if limit is None or used is None or limit >= 1 << 60:
+        if used is None:
             continue
         reclaimable = 0
         try:

@@ -182,6 +182,35 @@ def test_lane_budget_follows_the_address_space_limit():
 
 
 
+def test_cgroup_limits_are_found_now_and_then_and_usage_is_read_every_time(tmp_path,
+                                                                         monkeypatch):
+    """The memory a cgroup leaves: the tightest limited level (a parent's limit
+    binds too), less its usage, plus its reclaimable page cache. Finding the
+    limited levels reads the whole hierarchy, so it is redone only after
+    LIMITS_TTL seconds; the usage is read at every call."""
+    from mcrt.core import memory
+
+    root = tmp_path / "cgroup"
+    parent, leaf = root / "a", root / "a" / "b"
+    leaf.mkdir(parents=True)
+    (parent / "memory.max").write_text("1000000\n")
+    (parent / "memory.current").write_text("400000\n")
+    (parent / "memory.stat").write_text("anon 5\ninactive_file 100000\n")
+    (leaf / "memory.max").write_text("max\n")  # no limit of its own
+    (leaf / "memory.current").write_text("1\n")
+    monkeypatch.setattr(memory, "CGROUP_ROOT", root)
+    monkeypatch.setattr(memory, "_cgroup_dir", lambda: leaf)
+    monkeypatch.setattr(memory, "_limits", None)
+    assert memory._cgroup_left() == 1000000 - 400000 + 100000
+    (parent / "memory.current").write_text("900000\n")
+    assert memory._cgroup_left() == 200000  # usage read again
+    (leaf / "memory.max").write_text("50000\n")
+    (leaf / "memory.current").write_text("10000\n")
+    assert memory._cgroup_left() == 200000  # the new limit: not yet looked for
+    monkeypatch.setattr(memory, "LIMITS_TTL", 0.0)
+    assert memory._cgroup_left() == 40000
+
+
 def test_render_passes_shrink_only_to_fit_memory(monkeypatch):
     """With the memory available (mcrt.core.memory.available_bytes, which reads
     ulimit -v, cgroups and the host) leaving room for passes of 2 samples per
