@@ -146,8 +146,7 @@ class _Layout:
     cell_starts: np.ndarray  # where each cell's group starts in cell_bins
     cell_count: np.ndarray   # (n_cells,) full-spectrum bins per non-empty cell
     ring_of: np.ndarray      # (H * (W//2+1),) ring of each stored bin (-1: DC block)
-    ring_table: np.ndarray   # (n_rings, max_n) stored kept bins of each ring, padded with 0
-    ring_valid: np.ndarray   # (n_rings, max_n) bool: real entries of ring_table
+    rings: tuple[np.ndarray, ...]  # the stored kept bins of each ring
     ring_n: np.ndarray       # (n_rings,) stored kept bins per ring
     keep_full: np.ndarray    # (H, W) bool: every bin but the 3x3 around DC
     low_full: np.ndarray     # (H, W) bool: kept bins with |f| < cutoff
@@ -190,19 +189,13 @@ def _layout(shape: tuple[int, int], cutoff: float, cells: int) -> _Layout:
     ring = np.broadcast_to(np.floor(np.hypot(fx, fy) / RING_WIDTH).astype(np.int64), shape)
     ring_of = np.where(keep, ring, -1)[:, :half].ravel()
     ring_n = np.bincount(ring_of[ring_of >= 0])
-    ring_table = np.zeros((ring_n.size, max(int(ring_n.max()), 1)), dtype=np.int64)
-    ring_valid = np.zeros(ring_table.shape, dtype=bool)
-    for r in range(ring_n.size):
-        members = np.flatnonzero(ring_of == r)
-        ring_table[r, :members.size] = members
-        ring_valid[r, :members.size] = True
+    rings = tuple(np.flatnonzero(ring_of == r) for r in range(ring_n.size))
     return _Layout(window=np.outer(_hann(h), _hann(w)),
                    low_weight=low[:, :half] * multiplicity,
                    keep_weight=keep[:, :half] * multiplicity,
                    cell_bins=cell_bins[order], cell_starts=starts,
                    cell_count=counts[counts > 0].astype(np.float64),
-                   ring_of=ring_of, ring_table=ring_table, ring_valid=ring_valid,
-                   ring_n=ring_n,
+                   ring_of=ring_of, rings=rings, ring_n=ring_n,
                    keep_full=keep, low_full=low, share=float(low.sum() / keep.sum()))
 
 
@@ -237,12 +230,16 @@ def _statistics(power: np.ndarray, layout: _Layout) -> tuple[np.ndarray, np.ndar
     # Whiten by the ring median (over the stored half spectrum): any isotropic
     # spectrum becomes flat, and a coherent peak, a few bins of its ring, does
     # not raise its own normaliser.
-    values = np.where(layout.ring_valid, flat[:, layout.ring_table], np.inf)
-    values.sort(axis=-1)
+    # (Each ring's two middle values by a partial sort of that ring alone: the
+    # same values as sorting, in half the time of one padded sort of all rings.)
     n = layout.ring_n
-    rings = np.arange(n.size)
-    lo, hi = np.maximum((n - 1) // 2, 0), n // 2
-    median = 0.5 * (values[:, rings, lo] + values[:, rings, hi])
+    median = np.full((flat.shape[0], n.size), np.inf)
+    for r, members in enumerate(layout.rings):
+        if members.size:
+            lo, hi = (members.size - 1) // 2, members.size // 2
+            values = flat[:, members]
+            values.partition(sorted({lo, hi}), axis=-1)
+            median[:, r] = 0.5 * (values[:, lo] + values[:, hi])
     median = np.where((n > 0) & (median > 0), median, np.inf)  # 0 power: whitened to 0
     scale = np.concatenate([median, np.full((median.shape[0], 1), np.inf)], axis=1)
     whitened = flat / scale[:, layout.ring_of]  # ring -1 (DC block) -> last column, inf
