@@ -65,6 +65,49 @@ def test_the_local_dashboard_listens_on_this_machine_only(cluster):
     assert bound and all(a == "0100007F" for a in bound), bound
 
 
+#: Whether a 4 MiB numpy array, made after another one was freed, lives in its own
+#: mmap (glibc's mallinfo2: bytes in mmapped blocks) rather than in the reused heap.
+MAPPED = """
+import ctypes, numpy as np
+class Info(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd",
+                                               "usmblks", "fsmblks", "uordblks", "fordblks",
+                                               "keepcost")]
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = Info
+np.ones(1 << 19).sum()
+array = np.ones(1 << 19)
+mapped = libc.mallinfo2().hblkhd >= array.nbytes
+"""
+
+
+def _mapped() -> bool:
+    scope: dict = {}
+    exec(MAPPED, scope)
+    return bool(scope["mapped"])
+
+
+@pytest.mark.parametrize("lifted", [False, True])
+def test_reuse_freed_memory_lifts_dasks_malloc_trim_threshold(lifted):
+    """Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also fixes
+    glibc's mmap threshold at 128 KiB: every array above it is mapped afresh
+    (and its pages faulted in) however many were freed before. After
+    reuse_freed_memory() a freed array's memory is reused."""
+    code = ("from mcrt.core.cluster import reuse_freed_memory\n"
+            "assert reuse_freed_memory() is True\n" if lifted else "") + MAPPED \
+        + "print(mapped)"
+    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, check=True, cwd=ROOT)
+    assert done.stdout.split()[-1] == str(not lifted)
+
+
+def test_workers_reuse_the_memory_numpy_frees(cluster):
+    """The workers' setup (WorkerSetup) lifts Dask's malloc trim threshold."""
+    mapped = cluster.client.run(_mapped)
+    assert mapped and not any(mapped.values()), mapped
+
+
 def test_reference_on_a_cluster_is_bit_identical(cluster):
     """8 passes on two worker processes, folded in pass order: the same float64
     moments as the passes run one after the other here."""
