@@ -137,6 +137,24 @@ def reuse_freed_memory() -> bool:
         return False
 
 
+def placement(indices: list[int], groups: Callable[[int], int],
+              workers: list[str]) -> dict[int, str]:
+    """The worker each task prefers: the tasks, ordered by group (groups in the
+    order they first appear) and then by index, cut into one nearly equal run
+    per worker. Each worker gets as many tasks as the others and as few groups
+    as that allows: with 3 groups of 5 tasks on 2 workers, 2 groups each (one of
+    them split) where tasks taken in turn would warm every group on both."""
+    if not workers or not indices:
+        return {}
+    first: dict[int, int] = {}
+    for position, index in enumerate(sorted(indices)):
+        first.setdefault(groups(index), position)
+    ordered = sorted(indices, key=lambda index: (first[groups(index)], index))
+    n = len(workers)
+    return {index: workers[position * n // len(ordered)]
+            for position, index in enumerate(ordered)}
+
+
 class DaskExecutor:
     """The executor interface (``map``) over a ``distributed.Client``."""
 
@@ -229,9 +247,13 @@ class DaskExecutor:
         return f"workers {busy}/{len(processing)} busy"
 
     def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
-            shared: dict[str, Any] | None = None,
-            name: str = "") -> Iterator[tuple[int, R]]:
+            shared: dict[str, Any] | None = None, name: str = "",
+            groups: Callable[[int], int] | None = None) -> Iterator[tuple[int, R]]:
         """Submit the tasks, yield their results as they come.
+
+        With ``groups``, each task prefers the worker :func:`placement` gives it
+        (a loose restriction: Dask still moves it to an idle worker), so that
+        the workers warm up fewer groups each.
 
         Shared inputs are tasks that carry their value (:meth:`_input`), so Dask
         makes them again wherever they were lost. Worker deaths are Dask's to
@@ -249,10 +271,13 @@ class DaskExecutor:
         def submit(indices: list[int]) -> None:
             inputs = {key: self._input(value) for key, value in (shared or {}).items()}
             try:
+                where = placement(indices, groups, self._addresses()) if groups else {}
                 for index in indices:
                     suffix = f"-again{again[index]}" if index in again else ""
+                    prefer = {"workers": [where[index]], "allow_other_workers": True} \
+                        if index in where else {}
                     future = self.client.submit(fn, index, **inputs, pure=False,
-                                                retries=RETRIES,
+                                                retries=RETRIES, **prefer,
                                                 key=f"mcrt-{label}-{run}-{index}{suffix}")
                     submitted[future] = index
             except _LOST as error:
@@ -278,6 +303,10 @@ class DaskExecutor:
             for future in submitted:
                 if not future.done():
                     future.cancel()
+
+    def _addresses(self) -> list[str]:
+        """The workers' addresses now, sorted."""
+        return sorted(self.client.scheduler_info().get("workers", {}))
 
     def _wait(self, submitted: dict[Future, int]) -> list[Future]:
         """The futures that finished, erred or were cancelled (at least one),

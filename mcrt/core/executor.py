@@ -1,9 +1,11 @@
 """Executors run a job's tasks; :func:`~mcrt.core.job.run_job` folds the results.
 
-An executor has one method, ``map(fn, tasks, start, shared, name)``, yielding
-``(index, fn(index, **shared))`` for every task index from ``start`` to
+An executor has one method, ``map(fn, tasks, start, shared, name, groups)``,
+yielding ``(index, fn(index, **shared))`` for every task index from ``start`` to
 ``tasks - 1``, in any order. Tasks are deterministic, so which executor ran
-them never changes a result.
+them never changes a result. ``groups(index)``, where given, names the tasks
+that are best run by one process (they share a warm-up); an executor may
+ignore it.
 
 * :class:`InProcess` runs them here, one after the other (the default);
 * :class:`~mcrt.core.cluster.DaskExecutor` runs them on a Dask cluster
@@ -25,16 +27,16 @@ CLUSTER_ENV = "MCRT_CLUSTER"
 
 class Executor(Protocol):
     def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
-            shared: dict[str, Any] | None = None,
-            name: str = "") -> Iterator[tuple[int, R]]: ...
+            shared: dict[str, Any] | None = None, name: str = "",
+            groups: Callable[[int], int] | None = None) -> Iterator[tuple[int, R]]: ...
 
 
 class InProcess:
     """Run tasks in this process, in order (the default)."""
 
     def map(self, fn: Callable[..., R], tasks: int, start: int = 0,
-            shared: dict[str, Any] | None = None,
-            name: str = "") -> Iterator[tuple[int, R]]:
+            shared: dict[str, Any] | None = None, name: str = "",
+            groups: Callable[[int], int] | None = None) -> Iterator[tuple[int, R]]:
         for index in range(start, tasks):
             yield index, fn(index, **(shared or {}))
 

@@ -82,6 +82,8 @@ class Job(Generic[R, T]):
     run: Callable[..., R]
     fold: Callable[[T | None, R], T]
     shared: dict[str, Any] = field(default_factory=dict)
+    #: ``groups(index)``: tasks best run by one process (they share a warm-up).
+    groups: Callable[[int], int] | None = None
 
 
 def run_job(job: Job[R, T], executor: Executor | None = None, done: int = 0, total: T | None = None,
@@ -99,7 +101,7 @@ def run_job(job: Job[R, T], executor: Executor | None = None, done: int = 0, tot
     next_index = done
     try:
         for index, result in executor.map(job.run, job.tasks, start=done, shared=job.shared,
-                                          name=job.key):
+                                          name=job.key, groups=job.groups):
             pending[index] = result
             while next_index in pending:
                 total = job.fold(total, pending.pop(next_index))

@@ -108,6 +108,24 @@ def test_workers_reuse_the_memory_numpy_frees(cluster):
     assert mapped and not any(mapped.values()), mapped
 
 
+def test_placement_gives_each_worker_equal_tasks_and_few_groups():
+    """3 cells of 5 renders (the study's task order: round by round, cells
+    shuffled) on 2 workers: 8 and 7 tasks, 2 cells each (not all 3 on both);
+    no workers: no preference."""
+    from mcrt.core.cluster import placement
+
+    order = [2, 0, 1]  # round 0's cell order; tasks 3r..3r+2 are round r
+    cell = {index: order[index % 3] for index in range(15)}
+    where = placement(list(range(15)), cell.__getitem__, ["a", "b"])
+    assert sorted(where) == list(range(15))
+    tasks = {w: [i for i in where if where[i] == w] for w in "ab"}
+    assert sorted(len(t) for t in tasks.values()) == [7, 8]
+    assert all(len({cell[i] for i in t}) == 2 for t in tasks.values())
+    assert {cell[i] for i in tasks["a"]} >= {2}  # the first cell to appear is a's whole
+    assert placement([4, 5], cell.__getitem__, []) == {}
+    assert set(placement([4, 5], cell.__getitem__, ["a", "b", "c"]).values()) <= {"a", "b", "c"}
+
+
 def test_reference_on_a_cluster_is_bit_identical(cluster):
     """8 passes on two worker processes, folded in pass order: the same float64
     moments as the passes run one after the other here."""

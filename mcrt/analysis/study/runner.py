@@ -367,7 +367,8 @@ class _Run:
         self.bar.describe(f"{name}: {spp} spp")
         job: Job[SeedRender, list[SeedRender]] = Job(
             f"{name}/{spp}spp", task.tasks, functools.partial(render_seed, task), collect,
-            shared={"scene": scene.source(), "reference": ref.mean})
+            shared={"scene": scene.source(), "reference": ref.mean},
+            groups=lambda index: task.slot(index)[0])  # a cell's renders share its warm-up
         folded = run_job(job, self.executor, on_fold=on_fold) or []
         by_cell: list[list[SeedRender]] = [[] for _ in cells]
         for rendered in folded:  # in task order: every cell's renders in round order
