@@ -87,6 +87,19 @@ def _mapped() -> bool:
     return bool(scope["mapped"])
 
 
+def _glibc() -> bool:
+    import ctypes
+
+    try:
+        return hasattr(ctypes.CDLL("libc.so.6"), "mallinfo2")
+    except OSError:
+        return False
+
+
+needs_glibc = pytest.mark.skipif(not _glibc(), reason="glibc 2.33+ (mallopt, mallinfo2) only")
+
+
+@needs_glibc
 @pytest.mark.parametrize("lifted", [False, True])
 def test_reuse_freed_memory_lifts_dasks_malloc_trim_threshold(lifted):
     """Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also fixes
@@ -102,6 +115,7 @@ def test_reuse_freed_memory_lifts_dasks_malloc_trim_threshold(lifted):
     assert done.stdout.split()[-1] == str(not lifted)
 
 
+@needs_glibc
 def test_workers_reuse_the_memory_numpy_frees(cluster):
     """The workers' setup (WorkerSetup) lifts Dask's malloc trim threshold."""
     mapped = cluster.client.run(_mapped)
