@@ -124,8 +124,8 @@ def reuse_freed_memory() -> bool:
     off: it starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also fixes
     glibc's mmap threshold at 128 KiB, so every array above it is mapped afresh
     and page-faulted on each use. A study's tasks score their renders in numpy
-    (FFTs, CIEDE2000): on a ``local:1`` worker they took 14% longer than the same
-    tasks in the client's process, 2% with this (benchmarks/cluster_scaling.py).
+    (FFTs, CIEDE2000): on a ``local:1`` worker a task cost 28.7 ms more than in
+    the client's process, 11-12.5 ms with this (benchmarks/cluster_scaling.py).
     Sets the thresholds to glibc's own dynamic ceiling; False where it did nothing."""
     if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
         return False
