@@ -26,8 +26,6 @@ silenced while mcrt uses the client); the folded tasks stay checkpointed.
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import logging
 import os
 import re
@@ -43,6 +41,7 @@ from distributed.client import ClosedClientError
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..errors import McrtError
+from .memory import reuse_freed_memory
 from .scene_files import SceneSource, describe
 
 log = logging.getLogger("mcrt.cluster")
@@ -113,37 +112,12 @@ class WorkerSetup(WorkerPlugin):
         reuse_freed_memory()
 
 
-#: glibc's ``mallopt`` parameters (malloc.h) and the values :func:`reuse_freed_memory` sets.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-MMAP_THRESHOLD = 32 << 20
-TRIM_THRESHOLD = 64 << 20
-
-
-def reuse_freed_memory() -> bool:
-    """Let this process reuse the memory numpy frees, where Dask's nanny turned that
-    off: it starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also fixes
-    glibc's mmap threshold at 128 KiB, so every array above it is mapped afresh
-    and page-faulted on each use. A study's tasks score their renders in numpy
-    (FFTs, CIEDE2000): on a ``local:1`` worker a task cost 28.7 ms more than in
-    the client's process, 11-12.5 ms with this (benchmarks/cluster_scaling.py).
-    Sets the thresholds to glibc's own dynamic ceiling; False where it did nothing."""
-    if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
-        return False
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return bool(libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)
-                    and libc.mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
-    except (OSError, AttributeError):  # not glibc
-        return False
-
-
 def placement(indices: list[int], groups: Callable[[int], int],
               workers: list[str]) -> dict[int, str]:
-    """The worker each task prefers: the tasks, ordered by group (groups in the
-    order they first appear) and then by index, cut into one nearly equal run
-    per worker. Each worker gets as many tasks as the others and as few groups
-    as that allows: with 3 groups of 5 tasks on 2 workers, 2 groups each (one of
-    them split) where tasks taken in turn would warm every group on both."""
+    """The worker each task prefers: the tasks, ordered by group (in the order
+    groups first appear) and index, cut into one nearly equal run per worker: as
+    few groups per worker as equal shares allow (3 groups of 5 tasks on 2
+    workers: 2 each, where tasks taken in turn warm every group on both)."""
     if not workers or not indices:
         return {}
     first: dict[int, int] = {}

@@ -22,7 +22,10 @@ measured peak).
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import errno
+import os
 import resource
 import time
 from pathlib import Path
@@ -292,7 +295,33 @@ def describe() -> str:
         return "the limits could not be read"
 
 
+#: glibc's ``mallopt`` parameters (malloc.h) and the values :func:`reuse_freed_memory` sets.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+MMAP_THRESHOLD = 32 << 20
+TRIM_THRESHOLD = 64 << 20
+
+
+def reuse_freed_memory() -> bool:
+    """Let this process reuse the memory numpy frees, where Dask's nanny turned that
+    off: it starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also fixes
+    glibc's mmap threshold at 128 KiB, so every array above it is mapped afresh
+    and page-faulted on each use. A study's tasks score their renders in numpy
+    (FFTs, CIEDE2000): on a ``local:1`` worker a task cost 28.7 ms more than in
+    the client's process, 11-12.5 ms with this (benchmarks/cluster_scaling.py;
+    :class:`mcrt.core.cluster.WorkerSetup` calls it). Sets the thresholds to
+    glibc's own dynamic ceiling; False where it did nothing."""
+    if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return bool(libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)
+                    and libc.mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
+    except (OSError, AttributeError):  # not glibc
+        return False
+
+
 __all__ = ["BYTES_PER_LANE", "KERNEL_BYTES", "LLVM_LOAD_BYTES", "STATS_BYTES_PER_LANE",
            "THREAD_START_BYTES", "address_space_left", "available_bytes", "describe",
            "film_bytes", "is_allocation_failure", "lane_budget", "moments_bytes",
-           "out_of_memory_message", "require_address_space", "require_memory"]
+           "out_of_memory_message", "require_address_space", "require_memory",
+           "reuse_freed_memory"]

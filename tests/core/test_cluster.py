@@ -106,7 +106,7 @@ def test_reuse_freed_memory_lifts_dasks_malloc_trim_threshold(lifted):
     glibc's mmap threshold at 128 KiB: every array above it is mapped afresh
     (and its pages faulted in) however many were freed before. After
     reuse_freed_memory() a freed array's memory is reused."""
-    code = ("from mcrt.core.cluster import reuse_freed_memory\n"
+    code = ("from mcrt.core.memory import reuse_freed_memory\n"
             "assert reuse_freed_memory() is True\n" if lifted else "") + MAPPED \
         + "print(mapped)"
     env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
