@@ -48,38 +48,25 @@ SHAPES = """<scene version="3.0.0">
     <shape type="rectangle" id="floor">
         <transform name="to_world"><rotate x="1" angle="-90"/><scale value="10"/></transform>
     </shape>
-    <shape type="rectangle" id="card">
-        <transform name="to_world"><scale value="0.4"/><translate x="-1.5" y="0.8"/></transform>
-        <vector name="mcrt_velocity" value="0.3, 0, 0"/>
-    </shape>
-    <shape type="disk" id="plate">
-        <transform name="to_world"><scale value="0.3"/><translate x="-0.5" y="1.2"/></transform>
-        <vector name="mcrt_angular_velocity" value="30, 0, 0"/>
-    </shape>
-    <shape type="cylinder" id="can">
-        <transform name="to_world"><scale value="0.2"/><translate x="0.3" y="0.2" z="0.5"/>
-        </transform>
-        <vector name="mcrt_velocity" value="0, 0.2, 0"/>
-    </shape>
-    <shape type="ply" id="facets">
-        <string name="filename" value="{ply}"/>
-        <transform name="to_world"><scale value="0.4"/><translate x="1.2" y="0.6"/></transform>
-        <bsdf type="roughconductor"/>
-        <vector name="mcrt_angular_velocity" value="0, 40, 0"/>
-    </shape>
-    <shape type="cube" id="box">
-        <transform name="to_world"><scale value="0.3"/><translate x="0.2" y="0.9" z="-0.8"/>
-        </transform>
-        <vector name="mcrt_angular_velocity" value="0, 35, 10"/>
-    </shape>
-    <shape type="sphere" id="lamp">
-        <transform name="to_world"><scale value="0.15"/><translate y="1.5" z="1"/></transform>
-        <emitter type="area"><rgb name="radiance" value="4, 4, 4"/></emitter>
-        <vector name="mcrt_velocity" value="0.2, 0, 0"/>
-    </shape>
+    {movers}
     {extra}
 </scene>
 """
+#: The moving shapes: (type, id, what the shape holds, to_world, motion property, value).
+MOVERS = [
+    ("rectangle", "card", "", '<scale value="0.4"/><translate x="-1.5" y="0.8"/>',
+     "mcrt_velocity", "0.3, 0, 0"),
+    ("disk", "plate", "", '<scale value="0.3"/><translate x="-0.5" y="1.2"/>',
+     "mcrt_angular_velocity", "30, 0, 0"),
+    ("cylinder", "can", "", '<scale value="0.2"/><translate x="0.3" y="0.2" z="0.5"/>',
+     "mcrt_velocity", "0, 0.2, 0"),
+    ("ply", "facets", '<string name="filename" value="{ply}"/><bsdf type="roughconductor"/>',
+     '<scale value="0.4"/><translate x="1.2" y="0.6"/>', "mcrt_angular_velocity", "0, 40, 0"),
+    ("cube", "box", "", '<scale value="0.3"/><translate x="0.2" y="0.9" z="-0.8"/>',
+     "mcrt_angular_velocity", "0, 35, 10"),
+    ("sphere", "lamp", '<emitter type="area"><rgb name="radiance" value="4, 4, 4"/></emitter>',
+     '<scale value="0.15"/><translate y="1.5" z="1"/>', "mcrt_velocity", "0.2, 0, 0"),
+]
 #: A moving mesh that emits light: its update rebuilds the area distribution.
 EMITTING_MESH = """<shape type="obj" id="panel">
         <string name="filename" value="{obj}"/>
@@ -100,8 +87,11 @@ def _fresh():
 def _shapes(tmp_path: Path, emitting_mesh: bool = False) -> Path:
     extra = EMITTING_MESH.format(obj=ROOT / "scenes/foreign/meshes/quad_light.obj")
     path = tmp_path / "shapes.xml"
-    path.write_text(SHAPES.format(ply=ROOT / "scenes/multisample/meshes/facets.ply",
-                                  extra=extra if emitting_mesh else ""))
+    movers = "".join(f'<shape type="{kind}" id="{ident}">{inner}<transform name="to_world">'
+                     f'{to_world}</transform><vector name="{prop}" value="{value}"/></shape>'
+                     for kind, ident, inner, to_world, prop, value in MOVERS)
+    path.write_text(SHAPES.format(movers=movers, extra=extra if emitting_mesh else "").replace(
+        "{ply}", str(ROOT / "scenes/multisample/meshes/facets.ply")))
     return path
 
 
