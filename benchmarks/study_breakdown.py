@@ -37,12 +37,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("config", nargs="?", default="configs/quick.toml", type=Path)
     args = parser.parse_args()
-    start = time.perf_counter()
-    import drjit as dr  # noqa: PLC0415  (timed: part of a command's start-up)
+    import drjit as dr
 
     from mcrt.cli import main as mcrt_main
 
-    imports = time.perf_counter() - start
     with tempfile.TemporaryDirectory() as out:
         _run(mcrt_main, args.config, Path(out) / "warm")  # kernels and references cached
         dr.set_flag(dr.JitFlag.KernelHistory, True)
@@ -56,8 +54,7 @@ def main() -> None:
         history = dr.kernel_history()
     kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
     stats = pstats.Stats(profile).stats  # type: ignore[attr-defined]
-    print(f"mcrt -q compare {args.config}: {wall:.1f} s under the profiler "
-          f"(imports before it: {imports:.1f} s)")
+    print(f"mcrt -q compare {args.config}: {wall:.1f} s under the profiler")
     print(f"  Dr.Jit kernels ran {kernels:.1f} s ({len(history)} launches)")
     for label, (suffix, name) in PARTS:
         cumulative = sum(entry[3] for (path, _, func), entry in stats.items()

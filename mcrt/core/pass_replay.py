@@ -151,7 +151,7 @@ class PassReplay:
         if not isinstance(accumulator, FilmAccumulator) or self.kind in RECORDINGS.failed:
             return False
         entry = RECORDINGS.get(self.kind, lambda: (self.scene, dr.freeze(_body, warn_after=8)),
-                                eager=self.eager, scene=self.scene)
+                                self.scene, eager=self.eager)
         if entry is None:
             return False
         now = _NOW

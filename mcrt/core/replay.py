@@ -107,16 +107,15 @@ class Recordings:
         self.made = 0  # entries made (recordings started) since the last clear
         _EVERY.append(self)
 
-    def get(self, key: tuple, make: Callable[[], Any], eager: bool = False,
-            scene: mi.Scene | None = None) -> Any | None:
+    def get(self, key: tuple, make: Callable[[], Any], scene: mi.Scene,
+            eager: bool = False) -> Any | None:
         """The entry of ``key`` (None: trace this call). An entry recorded while
         ``scene`` had other :class:`SceneArrays` is dropped and this call traced;
         an entry holds the arrays it was recorded with, so that a new array never
         takes their (reused) variable index."""
         held = self.entries.get(key)
-        traversal = (None if scene is None else
-                     held[2] if held is not None else SceneArrays(scene))
-        arrays = traversal.now() if traversal is not None else []
+        traversal = held[2] if held is not None else SceneArrays(scene)
+        arrays = traversal.now()
         state = tuple(dr.detail.collect_indices(arrays))
         if held is not None and held[0] != state:
             del self.entries[key]
@@ -201,8 +200,11 @@ class SceneArrays:
 
     def __init__(self, scene: mi.Scene) -> None:
         self.params = mi.traverse(scene)
-        self.keys = [key for key in self.params.keys()
-                     if dr.is_jit_v(self.params[key]) and dr.width(self.params[key]) != 1]
+        self.keys = []
+        for key in self.params.keys():
+            value = self.params[key]
+            if dr.is_jit_v(value) and dr.width(value) != 1:
+                self.keys.append(key)
 
     def now(self) -> list[Any]:
         return [self.params[key] for key in self.keys]
@@ -261,8 +263,7 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     key = render_key(scene, sampler, shape, sensor, channels)
     if key in _RECORDINGS.failed:
         return None
-    entry = _RECORDINGS.get(key, lambda: (scene, dr.freeze(_body, warn_after=4)),
-                            scene=scene)
+    entry = _RECORDINGS.get(key, lambda: (scene, dr.freeze(_body, warn_after=4)), scene)
     if entry is None:  # a render made once (of this scene's arrays) is traced
         return None
     _NOW.sampler, _NOW.shape, _NOW.sensor, _NOW.channels = sampler, shape, sensor, channels

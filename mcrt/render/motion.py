@@ -256,7 +256,8 @@ class MotionDriver:
     Shapes with a ``to_world`` parameter (sphere, rectangle, disk, cylinder, ...)
     get ``to_world(t) = M(t) to_world(0)``; meshes get their world-space vertex
     positions (and normals) moved by ``M(t)``. :meth:`on_pass` is the
-    ``on_pass(index, count)`` hook of :func:`mcrt.core.render.render_film`.
+    ``on_pass(index, count)`` of :func:`mcrt.core.render.render_film`, wrapped in a
+    :class:`SubframeHook` by :meth:`mcrt.render.plan.PlannedScene.schedule`.
     """
 
     def __init__(self, scene: mi.Scene, motions: Iterable[Motion],
@@ -353,10 +354,6 @@ class MotionDriver:
             raise SceneError(f"motion: {count} passes but "
                              f"{0 if self.times is None else len(self.times)} sub-frame times")
         self.set_time(float(self.times[index]))
-
-    def hook(self) -> SubframeHook | None:
-        """The sub-frame hook if anything moves, else None (a static render needs no hook)."""
-        return SubframeHook(self) if self._initial else None
 
 
 class SubframeHook:
