@@ -9,7 +9,12 @@ times after a warm-up and reports, per render:
   pass), timed with ``dr.sync_thread()`` around it;
 * from Dr.Jit's kernel history: the kernels' execution time, and the ``Memcpy``
   kernels per pass (whole-array copies, e.g. a scatter into an array that a
-  pending gather still reads).
+  pending gather still reads);
+* the time of each pass that no kernel ran in (the pass's wall time less its
+  kernels' own clocks: Python, numpy, tracing, launches), as a median over
+  passes. It is a direct measure of host cost, steadier than the fit's
+  intercept, which also takes in kernels that scale with pixels, not samples
+  (the commit), and moves +-2 ms between runs of 4 renders here.
 
 ``--replay both`` renders each seed traced (``MCRT_REPLAY=0``: every wavefront
 traced) and replayed (:mod:`mcrt.render.adaptive.frozen`), interleaved, in
@@ -29,11 +34,13 @@ from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 mi.set_variant("llvm_ad_rgb")
 
 from mcrt.core import replay  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
+from mcrt.core.timing import fit_cost  # noqa: E402
 from mcrt.render.adaptive import AdaptiveSettings, pass_time_fit, render_adaptive  # noqa: E402
 from mcrt.render.adaptive.sums import PixelSums  # noqa: E402
 from mcrt.render.scene import load_scene  # noqa: E402
@@ -82,33 +89,46 @@ def _render(scene, settings, seed: int, commit_seconds: list[float]) -> tuple:
     """One timed render: (wall, passes, kernel seconds, commit seconds, Memcpy kernels,
     result)."""
     commit_seconds.clear()
+    history: list[dict] = []
+    host: list[float] = []  # per pass: its wall time less its kernels' execution time
+
+    def on_pass(record) -> None:
+        own = dr.kernel_history()
+        history.extend(own)
+        host.append(record.seconds - sum(k.get("execution_time", 0.0) for k in own) / 1e3)
+
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()  # start empty
     dr.sync_thread()
     start = time.perf_counter()
     result = render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
-                             seed=seed)
+                             seed=seed, on_pass=on_pass)
     dr.sync_thread()
     wall = time.perf_counter() - start
-    history = dr.kernel_history()
+    history.extend(dr.kernel_history())
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
     copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
-    return wall, len(result.passes), kernels, sum(commit_seconds), copies, result
+    return wall, len(result.passes), kernels, sum(commit_seconds), copies, host, result
 
 
 def _report(title: str, rows: list) -> None:
-    fit = pass_time_fit([p for *_, r in rows for p in r.passes])
+    passes = [p for *_, r in rows for p in r.passes]
+    fit = pass_time_fit(passes)
+    se = fit_cost([p.samples for p in passes], [p.seconds for p in passes]).fixed_se
     print(f"\n{title}:\n")
     print("| render | wall [s] | passes | kernel execution [s] | commit [ms] | Memcpy per pass |")
     print("|---:|---:|---:|---:|---:|---:|")
-    for i, (wall, passes, kernels, commit_s, copies, _) in enumerate(rows):
-        print(f"| {i + 1} | {wall:.3f} | {passes} | {kernels:.3f} | {1e3 * commit_s:.1f} | "
-              f"{copies / passes:.1f} |")
+    for i, (wall, count, kernels, commit_s, copies, _, _) in enumerate(rows):
+        print(f"| {i + 1} | {wall:.3f} | {count} | {kernels:.3f} | {1e3 * commit_s:.1f} | "
+              f"{copies / count:.1f} |")
+    host = [h for row in rows for h in row[5]]
     print(f"median: wall {statistics.median(r[0] for r in rows):.3f} s, commit "
           f"{1e3 * statistics.median(r[3] for r in rows):.1f} ms per render")
-    print(f"pass time over {fit['passes']:.0f} passes: {1e3 * fit['intercept']:.1f} ms + "
-          f"{1e9 * fit['slope']:.1f} ns x samples (R^2 {fit['r2']:.3f})")
+    print(f"pass time over {fit['passes']:.0f} passes: {1e3 * fit['intercept']:.1f} "
+          f"+- {1e3 * se:.1f} ms + {1e9 * fit['slope']:.1f} ns x samples (R^2 {fit['r2']:.3f})")
+    print(f"time of a pass outside kernels: median {1e3 * statistics.median(host):.2f} ms "
+          f"(IQR {1e3 * np.percentile(host, 25):.2f}-{1e3 * np.percentile(host, 75):.2f})")
 
 
 if __name__ == "__main__":

@@ -6,6 +6,10 @@ A pixel stays active while ``z * se_Y > threshold * max(Y, dark_floor * Ybar)``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
+import drjit as dr
 import numpy as np
 
 from ...core.colour import LUMINANCE_WEIGHTS
@@ -30,6 +34,21 @@ def luminance_error(stats: PixelStats) -> tuple[np.ndarray, np.ndarray]:
 
 def _luminance(rgb: np.ndarray) -> np.ndarray:
     return (rgb[..., 0] * LUMINANCE[0] + rgb[..., 1] * LUMINANCE[1]) + rgb[..., 2] * LUMINANCE[2]
+
+
+def luminance_error_device(moments: Sequence[Any]) -> list[Any]:
+    """:func:`luminance_error` on the device, with the same bits (the same
+    float64 operations in the same order: Dr.Jit does not fuse them), from the
+    moments ``(n, mean x 3, M2 x 3, ...)`` as Dr.Jit Float64 arrays; the
+    adaptive reduction kernel computes it for the pixels it updates
+    (tests/render/test_adaptive_sums.py checks the bits against numpy)."""
+    n, means, m2s = moments[0], moments[1:4], moments[4:7]
+    errors = []
+    for m2 in m2s:  # PixelStats.variance, .variance_of_mean, .standard_error
+        variance = dr.select(n > 1, m2 / dr.maximum(n - 1, 1), 0.0)
+        errors.append(dr.sqrt(dr.select(n > 0, variance / dr.maximum(n, 1), 0.0)))
+    weights = [float(w) for w in LUMINANCE]
+    return [(x[0] * weights[0] + x[1] * weights[1]) + x[2] * weights[2] for x in (means, errors)]
 
 
 def image_mean_luminance(mean_y: np.ndarray, count: np.ndarray) -> float:
@@ -83,4 +102,4 @@ def dilate(image: np.ndarray, radius: int) -> np.ndarray:
 
 
 __all__ = ["IMAGE_MEAN_QUANTILE", "LUMINANCE", "dilate", "error_ratio", "image_mean_luminance",
-           "luminance_error"]
+           "luminance_error", "luminance_error_device"]

@@ -60,7 +60,7 @@ _RECORDINGS = replay.Recordings(LIMIT)  # (failures per kind: for every batch si
 
 
 def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, seed: Any,
-          prior: list[Any], tables: tuple) -> tuple[list[list[Any]], list[Any]]:
+          moments: list[Any], tables: tuple) -> tuple[list[list[Any]], list[Any]]:
     """One wavefront, as :func:`.wavefront.trace_wavefront` traces it, from
     device arrays only (every width from an input's: replayed for any count of
     active pixels)."""
@@ -77,7 +77,7 @@ def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, se
     values = rgb_alpha(film, samples)
     finite, cell, _ = sample_cells(samples, values, now.s)
     dr.eval(values, finite, cell)
-    return reduce_wavefront(prior, m, values, finite, cell, now.s)
+    return reduce_wavefront(moments, ids, m, values, finite, cell, now.s)
 
 
 def why_not(target: Target) -> str | None:
@@ -124,7 +124,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
     # memory an earlier (traced) wavefront's state maps would be released by a
     # host callback, which Dr.Jit cannot record (it aborts the process).
     sampler.seed(0, 1)  # type: ignore[arg-type]  # the stub wants a UInt array
-    prior = acc.stats[ids]
+    slots = to_device(mi.UInt32, ids)
     # sobol continues each pixel's sequence; the others draw epoch k at count m.
     offset = (to_device(mi.UInt32, acc.traced[ids]) if progressive
               else dr.opaque(mi.UInt32, k * m))
@@ -132,11 +132,9 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
         tables: tuple = getattr(sampler, "frozen_inputs", tuple)()
         # No cyclic collection while Dr.Jit records or replays (mcrt.core.replay).
         with collection_held_back():
-            sums, moments = entry[2](scene, integrator, to_device(mi.UInt32, ids),
-                                     dr.arange(mi.UInt32, ids.size * m), offset,
-                                     dr.opaque(mi.UInt32, seed), acc.prior_columns(prior),
-                                     tables)
-            pending = acc.pending(ids, m, prior, sums, moments)
+            sums, out = entry[2](scene, integrator, slots, dr.arange(mi.UInt32, ids.size * m),
+                                 offset, dr.opaque(mi.UInt32, seed), acc.moments, tables)
+            pending = acc.pending(ids, slots, m, sums, out)
     except RuntimeError as error:  # what cannot be recorded is traced, from now on
         _RECORDINGS.fail(key, kind, error, f"adaptive wavefronts of {sampler_name(sampler)}")
         return None

@@ -12,17 +12,25 @@ thread per pixel walks its lanes in sample order and
   sub-pixel).
 
 A sample with a non-finite R, G or B is left out of both and counted. The
-moments of every pixel live on the host (the error test reads them after every
-pass: 8 float64 per pixel); the sub-pixel sums, ``s * s * (C + 1)`` float64 per
-pixel (one pixel-major array: a pixel's row of sums is contiguous), stay on the
-device until the image is developed. A wavefront's results are *pending* until
-:meth:`PixelSums.commit`, which the engine calls for all of a pass's wavefronts
-at its end with interrupts held back, so the sums always describe whole passes.
-The commit adds a pixel's sub-pixel sums to its row, a thread per pixel: one
-pixel is in one wavefront per pass, so each slot gets exactly one addition per
-commit (no contention, the same bits as a gather, add and scatter, whatever the
-thread scheduling), and the grid is updated in place (a scatter into an array
-that a pending gather still reads would copy it whole first). The row layout
+moments of every pixel (8 float64) and the sub-pixel sums, ``s * s * (C + 1)``
+float64 per pixel (one pixel-major array: a pixel's row of sums is contiguous),
+stay on the device until the image is developed: the kernel gathers a pixel's
+moments so far itself, and continues them into its luminance and standard
+error (:func:`~.criterion.luminance_error_device`). The host keeps what the
+error test reads after every pass - finite and non-finite counts, luminance,
+its error - four float64 per pixel, read back for the wavefront's pixels only.
+(With the moments on the host, a pass took and uploaded its pixels' rows, read
+them back and recomputed their luminance error in numpy: a pass's time outside
+kernels was 5.2-5.7 ms, now 3.0-3.3, benchmarks/adaptive_pass_cost.py, 3
+alternated runs against the earlier tree.) A wavefront's
+results are *pending* until :meth:`PixelSums.commit`, which the engine calls
+for all of a pass's wavefronts at its end with interrupts held back, so the
+sums always describe whole passes. The commit adds a pixel's sub-pixel sums to
+its row and writes its new moments, a thread per pixel: one pixel is in one
+wavefront per pass, so each slot gets exactly one write per commit (no
+contention, the same bits as a gather, add and scatter, whatever the thread
+scheduling), and the arrays are updated in place (a scatter into an array that
+a pending gather still reads would copy it whole first). The row layout
 touches ``row / 8`` cache lines per pixel where one array per (cell, value) took
 one each: the commit kernel of a pass of ~13k pixels (benchmarks/adaptive_pass_cost.py)
 fell from 6.1 to 4.0 ms (median, 2-core VM); a first wavefront of every pixel
@@ -45,14 +53,15 @@ import numpy as np
 from ...core.stats import PixelStats
 from ...core.upload import to_device
 from ...errors import McrtError
-from .criterion import luminance_error
+from .criterion import luminance_error_device
 
 #: Most sub-pixels one reduction kernel sums (its local buffer holds this many
 #: cells of ``C + 1`` float64 per thread); a finer grid (``subpixels`` > 8) is
 #: reduced by several kernels, one per block of cells.
 CELLS_PER_KERNEL = 64
 
-#: Columns of the host's per-pixel moments.
+#: The per-pixel moments, one device array each: finite samples, mean and M2 of
+#: R, G, B, non-finite samples.
 N, MEAN, M2, BAD = 0, slice(1, 4), slice(4, 7), 7
 STAT_COLUMNS = 8
 
@@ -62,8 +71,10 @@ class Pending:
     """One reduced wavefront, not yet committed."""
 
     ids: np.ndarray  # pixel ids (int64)
+    slots: Any  # the same ids on the device (UInt32)
     m: int  # samples per pixel
-    stats: np.ndarray  # (ids.size, STAT_COLUMNS): the new moments
+    moments: list[Any]  # the pixels' new moments (STAT_COLUMNS device arrays)
+    host: np.ndarray  # (4, ids.size): their count, non-finite count, luminance, its error
     cells: list[tuple[int, list[mi.Float64]]]  # (first cell, sums per cell x channel)
     nonfinite: int  # non-finite samples in this wavefront
 
@@ -74,13 +85,18 @@ class PixelSums:
 
     def __init__(self, pixels: int, s: int, channels: int) -> None:
         self.pixels, self.s, self.channels = pixels, s, channels
-        self.stats = np.zeros((pixels, STAT_COLUMNS))
         self.traced = np.zeros(pixels, np.int64)
-        #: Per-pixel mean luminance and its standard error (the error test's
-        #: inputs, :func:`~.criterion.luminance_error`), updated for the pixels
-        #: each commit changes.
+        #: What the error test reads, per pixel: finite and non-finite samples
+        #: (float64, exact integers), mean luminance and its standard error
+        #: (:func:`~.criterion.luminance_error`), updated for the pixels each
+        #: commit changes.
+        self.count = np.zeros(pixels)
+        self.bad = np.zeros(pixels)
         self.mean_y = np.zeros(pixels)
         self.se_y = np.zeros(pixels)
+        #: The moments on the device (``STAT_COLUMNS`` arrays), evaluated: a
+        #: recorded wavefront reads them.
+        self.moments = [dr.opaque(mi.Float64, 0.0, pixels) for _ in range(STAT_COLUMNS)]
         #: Sub-pixel sums, pixel-major: pixel ``p``'s ``(cell, value... count)``
         #: row is ``grid[p * row : (p + 1) * row]``.
         self.grid = dr.zeros(mi.Float64, pixels * self.row)
@@ -99,55 +115,56 @@ class PixelSums:
         samples (``values`` per channel, ``finite``, sub-pixel ``cell``)."""
         if len(values) != self.channels:
             raise McrtError(f"adaptive: expected {self.channels} channels, got {len(values)}")
-        prior = self.stats[ids]
-        sums, moments = reduce_wavefront(self.prior_columns(prior), m, values, finite, cell,
-                                         self.s)
-        return self.pending(ids, m, prior, sums, moments)
+        slots = to_device(mi.UInt32, ids)
+        sums, out = reduce_wavefront(self.moments, slots, m, values, finite, cell, self.s)
+        return self.pending(ids, slots, m, sums, out)
 
-    def prior_columns(self, prior: np.ndarray) -> list[mi.Float64]:
-        """The moments ``prior`` (rows of :attr:`stats`) on the device, a column each."""
-        return [to_device(mi.Float64, prior[:, j]) for j in range(STAT_COLUMNS)]
-
-    def pending(self, ids: np.ndarray, m: int, prior: np.ndarray, sums: list[list[mi.Float64]],
-                moments: list[mi.Float64]) -> Pending:
+    def pending(self, ids: np.ndarray, slots: Any, m: int, sums: list[list[mi.Float64]],
+                out: list[mi.Float64]) -> Pending:
         """The :class:`Pending` of a wavefront that :func:`reduce_wavefront` reduced
-        on the device (``prior``: the pixels' moments before it)."""
-        stats = np.stack([np.asarray(x, dtype=np.float64) for x in moments], -1)
+        on the device (``slots``: ``ids`` on the device)."""
+        moments = out[:STAT_COLUMNS]
+        host = np.stack([np.asarray(x, dtype=np.float64)
+                         for x in (moments[N], moments[BAD], *out[STAT_COLUMNS:])])
         cells = list(zip(range(0, self.s * self.s, CELLS_PER_KERNEL), sums, strict=True))
-        return Pending(ids, m, stats, cells,
-                       int(round(stats[:, BAD].sum() - prior[:, BAD].sum())))
+        return Pending(ids, slots, m, moments, host, cells,
+                       int(round(host[1].sum() - self.bad[ids].sum())))
 
     def commit(self, pending: Pending) -> None:
         """Make ``pending`` current (call with interrupts held back)."""
         ids = pending.ids
-        self.stats[ids] = pending.stats
         self.traced[ids] += pending.m
-        self.mean_y[ids], self.se_y[ids] = luminance_error(self.pixel_stats(ids))
+        for column, values in zip((self.count, self.bad, self.mean_y, self.se_y), pending.host,
+                                  strict=True):
+            column[ids] = values
         sums = [value for _, block in pending.cells for value in block]
         if self.empty and ids.size == self.pixels and bool(np.all(np.diff(ids) > 0)):
-            # A first wavefront of every pixel, in order: its sums are the grid
-            # (0 + x == x), interleaved by one kernel that writes it in order.
+            # A first wavefront of every pixel, in order: its moments are the
+            # moments and its sums the grid (0 + x == x), interleaved by one kernel
+            # that writes it in order.
+            self.moments = list(pending.moments)
             self.grid = mi.Float64(dr.ravel(_rows(sums)))
         else:
             # One kernel, a thread per pixel: the pixel's row of sums is contiguous
             # (row / 8 cache lines, not one per plane).
-            slot = to_device(mi.UInt32, ids) * self.row
+            row = pending.slots * self.row
             for j, value in enumerate(sums):
-                dr.scatter_add(self.grid, value, slot + j, mode=dr.ReduceMode.Direct)
-        dr.eval(self.grid)
+                dr.scatter_add(self.grid, value, row + j, mode=dr.ReduceMode.Direct)
+            for moment, value in zip(self.moments, pending.moments, strict=True):
+                dr.scatter(moment, value, pending.slots)
+        dr.eval(self.grid, self.moments)
         self.empty = False
 
     # -- reading ------------------------------------------------------------
-    def pixel_stats(self, ids: np.ndarray | None = None) -> PixelStats:
-        """The per-pixel moments (flat arrays over the sampled grid, or of the
-        pixels ``ids``)."""
-        stats = self.stats if ids is None else self.stats[ids]
+    def pixel_stats(self) -> PixelStats:
+        """The per-pixel moments (flat arrays over the sampled grid)."""
+        stats = np.stack([np.asarray(x, dtype=np.float64) for x in self.moments], -1)
         return PixelStats(count=stats[:, N].astype(np.int64), mean=stats[:, MEAN],
                           m2=stats[:, M2], nonfinite=stats[:, BAD].astype(np.int64))
 
     def counts(self) -> np.ndarray:
-        """Finite samples per pixel (a float64 view of :attr:`stats`: exact integers)."""
-        return self.stats[:, N]
+        """Finite samples per pixel (float64: exact integers)."""
+        return self.count
 
     def sub_pixels(self) -> tuple[np.ndarray, np.ndarray]:
         """``(sums (pixels, s*s, C), counts (pixels, s*s))`` of the sub-pixels."""
@@ -165,7 +182,7 @@ class PixelSums:
                 "sub_sum": sub_sum.copy(), "sub_count": sub_count}
 
     def nbytes(self) -> int:
-        return self.stats.nbytes + self.traced.nbytes + 8 * self.pixels * self.row
+        return 8 * self.pixels * (STAT_COLUMNS + 5 + self.row)
 
     def restore(self, arrays: dict[str, np.ndarray]) -> None:
         """Continue from :meth:`arrays` of an identical render."""
@@ -175,12 +192,14 @@ class PixelSums:
                     "sub_sum": (self.pixels, s2, self.channels), "sub_count": (self.pixels, s2)}
         if any(arrays[name].shape != shape for name, shape in expected.items()):
             raise McrtError("the saved adaptive render does not match this scene")
-        self.stats[:, N] = arrays["count"]
-        self.stats[:, MEAN] = arrays["mean"]
-        self.stats[:, M2] = arrays["m2"]
-        self.stats[:, BAD] = arrays["nonfinite"]
+        stats = np.zeros((STAT_COLUMNS, self.pixels))
+        stats[N], stats[MEAN], stats[M2] = arrays["count"], arrays["mean"].T, arrays["m2"].T
+        stats[BAD] = arrays["nonfinite"]
+        self.moments = [to_device(mi.Float64, column) for column in stats]
         self.traced[...] = arrays["traced"]
-        self.mean_y, self.se_y = luminance_error(self.pixel_stats())
+        self.count, self.bad = stats[N].copy(), stats[BAD].copy()
+        mean_y, se_y = luminance_error_device(self.moments)
+        self.mean_y, self.se_y = (np.asarray(x, dtype=np.float64) for x in (mean_y, se_y))
         grid = np.concatenate([arrays["sub_sum"], arrays["sub_count"][..., None]], -1)
         self.grid = to_device(mi.Float64, grid)
         self.empty = False
@@ -192,36 +211,37 @@ def _rows(columns: list[mi.Float64]) -> Any:
     return array_xf64(columns)
 
 
-def reduce_wavefront(prior: list[mi.Float64], m: int, values: Sequence[mi.Float],
-                     finite: mi.Bool, cell: mi.UInt32, s: int
+def reduce_wavefront(moments: list[mi.Float64], slots: mi.UInt32, m: int,
+                     values: Sequence[mi.Float], finite: mi.Bool, cell: mi.UInt32, s: int
                      ) -> tuple[list[list[mi.Float64]], list[mi.Float64]]:
     """Device arrays only (a frozen function records it, :mod:`.frozen`): the
-    sub-pixel sums of each block of :data:`CELLS_PER_KERNEL` cells and the
-    moments continued from ``prior`` (:meth:`PixelSums.prior_columns`) over a
-    wavefront of ``m`` lanes per pixel."""
+    sub-pixel sums of each block of :data:`CELLS_PER_KERNEL` cells, and the
+    moments of the pixels ``slots`` continued from ``moments``
+    (:attr:`PixelSums.moments`) over a wavefront of ``m`` lanes per pixel,
+    followed by their mean luminance and its standard error."""
     blocks: list[list[mi.Float64]] = []
-    moments: list[mi.Float64] = []
+    out: list[mi.Float64] = []
     for lo in range(0, s * s, CELLS_PER_KERNEL):
         hi = min(lo + CELLS_PER_KERNEL, s * s)
-        sums, out = _reduce_kernel(prior, lo == 0, m, values, finite, cell, lo, hi)
+        prior = [dr.gather(mi.Float64, x, slots) for x in moments] if lo == 0 else []
+        sums, stats = _reduce_kernel(prior, slots, m, values, finite, cell, lo, hi)
         blocks.append(sums)
-        moments = moments or out
-    return blocks, moments
+        out = out or stats
+    return blocks, out
 
 
-def _reduce_kernel(prior: list[mi.Float64], moments: bool, m: int, values: Sequence[mi.Float],
+def _reduce_kernel(prior: list[Any], slots: mi.UInt32, m: int, values: Sequence[mi.Float],
                    finite: mi.Bool, cell: mi.UInt32, lo: int, hi: int
                    ) -> tuple[list[mi.Float64], list[mi.Float64]]:
     """One thread per pixel over its ``m`` lanes: the sums of cells ``lo..hi-1``
-    (value channels, then the count, per cell) and, with ``moments``, the
-    pixel's moments continued from ``prior`` over the lanes (``STAT_COLUMNS``
-    arrays)."""
+    (value channels, then the count, per cell) and, given the pixel's moments
+    so far (``prior``), its moments continued over the lanes (``STAT_COLUMNS``
+    arrays), its mean luminance and their standard error."""
     width = len(values) + 1
     # The pixel count from an input's width (not a host integer: a frozen
     # function replays with other widths).
-    first = dr.arange(mi.UInt32, dr.width(prior[0])) * m
+    first = dr.arange(mi.UInt32, dr.width(slots)) * m
     local = dr.alloc_local(mi.Float64, (hi - lo) * width, dr.zeros(mi.Float64))
-    columns: list[Any] = list(prior) if moments else []
 
     def body(k: Any, local: Any, *stat: Any) -> tuple[Any, ...]:
         lane = first + k
@@ -237,11 +257,13 @@ def _reduce_kernel(prior: list[mi.Float64], moments: bool, m: int, values: Seque
             return (k + 1, local)
         return (k + 1, local, *_welford(stat, x[:3], keep))
 
-    state = dr.while_loop((mi.UInt32(0), local, *columns), lambda k, *_: k < m, body)
+    state = dr.while_loop((mi.UInt32(0), local, *prior), lambda k, *_: k < m, body)
     local = state[1]
     block = (hi - lo) * width
     sums = [local[j] for j in range(block)]
     stats = list(state[2:])
+    if stats:
+        stats += luminance_error_device(stats)
     dr.eval(sums, stats)
     return sums, stats
 
