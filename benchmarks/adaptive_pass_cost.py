@@ -5,16 +5,18 @@ times after a warm-up and reports, per render:
 
 * wall time, passes, and the fit ``seconds = a + b x samples`` over the passes
   (``a`` is the fixed cost a machine with faster kernels would not shrink);
-* the time of ``PixelSums.commit`` (the sub-pixel sums' update at the end of each
-  pass), timed with ``dr.sync_thread()`` around it;
+* with ``--commit-timing``, the time of ``PixelSums.commit`` (the update of the
+  sums at the end of each pass), timed with ``dr.sync_thread()`` around it
+  (which keeps its kernel from running on while the host goes on, as it does in
+  a render: off by default);
 * from Dr.Jit's kernel history: the kernels' execution time, and the ``Memcpy``
   kernels per pass (whole-array copies, e.g. a scatter into an array that a
-  pending gather still reads);
-* the time of each pass that no kernel ran in (the pass's wall time less its
-  kernels' own clocks: Python, numpy, tracing, launches), as a median over
-  passes. It is a direct measure of host cost, steadier than the fit's
-  intercept, which also takes in kernels that scale with pixels, not samples
-  (the commit), and moves +-2 ms between runs of 4 renders here.
+  pending gather still reads).
+
+The fit's intercept moves +-1-2 ms between runs of 4 renders here (it prints
+with its standard error), as kernel times do on a shared machine. Steadier: the
+time per pass in which no kernel ran (the passes' seconds less the kernels' own
+clocks, per render: Python, numpy, tracing, launches), median over renders.
 
 ``--replay both`` renders each seed traced (``MCRT_REPLAY=0``: every wavefront
 traced) and replayed (:mod:`mcrt.render.adaptive.frozen`), interleaved, in
@@ -22,6 +24,7 @@ alternating order, and fits each side on its own; ``on`` / ``off``: one side onl
 (``on``, the default, is what a render does).
 
     python benchmarks/adaptive_pass_cost.py [--renders 6] [--replay on|off|both]
+        [--commit-timing]
 """
 
 from __future__ import annotations
@@ -34,7 +37,6 @@ from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 mi.set_variant("llvm_ad_rgb")
 
@@ -46,6 +48,9 @@ from mcrt.render.adaptive.sums import PixelSums  # noqa: E402
 from mcrt.render.scene import load_scene  # noqa: E402
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "edges.xml"
+#: Untimed renders first: one traces each batch size, the next records it; a
+#: seed may reach a batch size another did not.
+WARM_UP_SEEDS = (1001, 1001, 1002, 1002)
 
 
 def main() -> None:
@@ -54,6 +59,8 @@ def main() -> None:
     parser.add_argument("--replay", choices=["on", "off", "both"], default="on",
                         help="replayed wavefronts, traced ones (MCRT_REPLAY=0), or both "
                              "interleaved (default: on)")
+    parser.add_argument("--commit-timing", action="store_true",
+                        help="time PixelSums.commit (synchronised: slows the passes)")
     args = parser.parse_args()
     sides = ["off", "on"] if args.replay == "both" else [args.replay]
     scene = load_scene(SCENE, {})
@@ -68,11 +75,13 @@ def main() -> None:
         dr.sync_thread()
         commit_seconds.append(time.perf_counter() - start)
 
-    PixelSums.commit = timed_commit  # type: ignore[method-assign]
+    if args.commit_timing:
+        PixelSums.commit = timed_commit  # type: ignore[method-assign]
     for side in sides:  # warm-ups (the replayed side records its wavefronts)
         os.environ[replay.ENV] = "1" if side == "on" else "0"
-        for _ in range(2):
-            render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings, seed=0)
+        for seed in WARM_UP_SEEDS:  # (other seeds refine with other batch sizes)
+            render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
+                            seed=seed)
     rows: dict[str, list] = {side: [] for side in sides}
     for seed in range(1, args.renders + 1):
         for side in sides if seed % 2 else sides[::-1]:
@@ -89,27 +98,19 @@ def _render(scene, settings, seed: int, commit_seconds: list[float]) -> tuple:
     """One timed render: (wall, passes, kernel seconds, commit seconds, Memcpy kernels,
     result)."""
     commit_seconds.clear()
-    history: list[dict] = []
-    host: list[float] = []  # per pass: its wall time less its kernels' execution time
-
-    def on_pass(record) -> None:
-        own = dr.kernel_history()
-        history.extend(own)
-        host.append(record.seconds - sum(k.get("execution_time", 0.0) for k in own) / 1e3)
-
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()  # start empty
     dr.sync_thread()
     start = time.perf_counter()
     result = render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
-                             seed=seed, on_pass=on_pass)
+                             seed=seed)
     dr.sync_thread()
     wall = time.perf_counter() - start
-    history.extend(dr.kernel_history())
+    history = dr.kernel_history()
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
     copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
-    return wall, len(result.passes), kernels, sum(commit_seconds), copies, host, result
+    return wall, len(result.passes), kernels, sum(commit_seconds), copies, result
 
 
 def _report(title: str, rows: list) -> None:
@@ -119,16 +120,17 @@ def _report(title: str, rows: list) -> None:
     print(f"\n{title}:\n")
     print("| render | wall [s] | passes | kernel execution [s] | commit [ms] | Memcpy per pass |")
     print("|---:|---:|---:|---:|---:|---:|")
-    for i, (wall, count, kernels, commit_s, copies, _, _) in enumerate(rows):
+    for i, (wall, count, kernels, commit_s, copies, _) in enumerate(rows):
         print(f"| {i + 1} | {wall:.3f} | {count} | {kernels:.3f} | {1e3 * commit_s:.1f} | "
               f"{copies / count:.1f} |")
-    host = [h for row in rows for h in row[5]]
+    idle = [(sum(p.seconds for p in r.passes) - kernels) / count
+            for _, count, kernels, _, _, r in rows]
+    print(f"time per pass without a kernel running: median {1e3 * statistics.median(idle):.2f}"
+          f" ms (renders: {', '.join(f'{1e3 * x:.2f}' for x in idle)})")
     print(f"median: wall {statistics.median(r[0] for r in rows):.3f} s, commit "
           f"{1e3 * statistics.median(r[3] for r in rows):.1f} ms per render")
     print(f"pass time over {fit['passes']:.0f} passes: {1e3 * fit['intercept']:.1f} "
           f"+- {1e3 * se:.1f} ms + {1e9 * fit['slope']:.1f} ns x samples (R^2 {fit['r2']:.3f})")
-    print(f"time of a pass outside kernels: median {1e3 * statistics.median(host):.2f} ms "
-          f"(IQR {1e3 * np.percentile(host, 25):.2f}-{1e3 * np.percentile(host, 75):.2f})")
 
 
 if __name__ == "__main__":
