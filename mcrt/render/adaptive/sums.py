@@ -20,9 +20,9 @@ error (:func:`~.criterion.luminance_error_device`). The host keeps what the
 error test reads after every pass - finite and non-finite counts, luminance,
 its error - four float64 per pixel, read back for the wavefront's pixels only.
 (With the moments on the host, a pass took and uploaded its pixels' rows, read
-them back and recomputed their luminance error in numpy: a pass's time outside
-kernels was 5.2-5.7 ms, now 3.0-3.3, benchmarks/adaptive_pass_cost.py, 3
-alternated runs against the earlier tree.) A wavefront's
+them back and recomputed their luminance error in numpy: the time per pass
+without a kernel running was 3.75-4.19 ms on scenes/edges.xml, now 1.69-2.32,
+benchmarks/adaptive_pass_cost.py, 3 alternated runs against the earlier tree.) A wavefront's
 results are *pending* until :meth:`PixelSums.commit`, which the engine calls
 for all of a pass's wavefronts at its end with interrupts held back, so the
 sums always describe whole passes. The commit adds a pixel's sub-pixel sums to
