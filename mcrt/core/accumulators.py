@@ -166,7 +166,9 @@ class FilmAccumulator:
 
     def state(self) -> dict[str, np.ndarray]:
         w, h = self.ext
-        sums = np.stack([np.array(s, dtype=np.float64) for s in self.sums], axis=-1)
+        sums = np.empty((h * w, self.channels))
+        for c, s in enumerate(self.sums):  # (np.asarray: a view of a CPU array, not a copy)
+            sums[:, c] = np.asarray(s, dtype=np.float64)
         return {"sums": sums.reshape(h, w, self.channels),
                 "nonfinite": _numpy(self.nonfinite, (self.grid[1], self.grid[0]), np.int64)}
 

@@ -108,6 +108,21 @@ def test_failed_output_write_keeps_the_render(tmp_path, cache, capsys, monkeypat
     assert code == 0 and traced == [], err  # written without rendering again
 
 
+def test_a_render_that_writes_its_files_copies_its_sums_for_no_checkpoint(tmp_path, cache,
+                                                                           capsys, monkeypatch):
+    """The finished render's state (a float64 copy of the film's sums, 32 MiB at
+    1024^2) is taken only when writing the outputs fails (the test above)."""
+    from mcrt.core.accumulators import FilmAccumulator
+
+    copies: list[int] = []
+    real = FilmAccumulator.state
+    monkeypatch.setattr(FilmAccumulator, "state",
+                        lambda self: (copies.append(1), real(self))[1])
+    code, _, err = run_cli(capsys, "-q", *_commands(tmp_path)["render"])
+    assert code == 0, err
+    assert copies == []
+
+
 @pytest.mark.parametrize("cause", [errno.ENOSPC, errno.EROFS], ids=["enospc", "readonly"])
 def test_failed_report_write_keeps_the_cells(tmp_path, cache, capsys, monkeypatch, cause):
     args = _commands(tmp_path)["compare"]
