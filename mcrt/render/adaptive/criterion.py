@@ -37,11 +37,12 @@ def _luminance(rgb: np.ndarray) -> np.ndarray:
 
 
 def luminance_error_device(moments: Sequence[Any]) -> list[Any]:
-    """:func:`luminance_error` on the device, with the same bits (the same
-    float64 operations in the same order: Dr.Jit does not fuse them), from the
-    moments ``(n, mean x 3, M2 x 3, ...)`` as Dr.Jit Float64 arrays; the
-    adaptive reduction kernel computes it for the pixels it updates
-    (tests/render/test_adaptive_sums.py checks the bits against numpy)."""
+    """:func:`luminance_error` on the device, from the moments ``(n, mean x 3,
+    M2 x 3, ...)`` as Dr.Jit Float64 arrays: the same float64 operations in the
+    same order, so on the LLVM backend, which does not fuse a multiply and an
+    add, the same bits (tests/render/test_adaptive_sums.py). The adaptive
+    reduction kernel computes it for the pixels it updates, and a restored
+    checkpoint for every pixel, so the two agree on any backend."""
     n, means, m2s = moments[0], moments[1:4], moments[4:7]
     errors = []
     for m2 in m2s:  # PixelStats.variance, .variance_of_mean, .standard_error
