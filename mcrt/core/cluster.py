@@ -10,17 +10,16 @@
   :class:`~mcrt.core.scene_files.SceneBundle` (keyed by content, sent to each
   worker once), and workers keep loaded scenes and compiled kernels between tasks.
 
-Tasks are deterministic and their results are folded in task order on the
-client (:func:`~mcrt.core.job.run_job`), so a result does not depend on which
-worker ran what, or when. While the scheduler lives, any number of workers may
-die, all of them at once too: the inputs the tasks share are tasks that carry
-their value (not scattered data, which dies with the last worker holding it), so
-Dask makes them again, and it runs the lost tasks again (same results); a task
-Dask gives up on (its workers kept dying) is submitted again a few times; with
-no worker left the job waits for one (:data:`WORKER_WAIT`), then fails saying
-what was lost. A scheduler that cannot be reached, or that goes away, is a
-one-line :class:`~mcrt.errors.McrtError` (Dask's own log lines and tracebacks are
-silenced while mcrt uses the client); the folded tasks stay checkpointed.
+Tasks are deterministic and their results are folded in task order on the client
+(:func:`~mcrt.core.job.run_job`), so a result does not depend on which worker ran what, or
+when. While the scheduler lives, any number of workers may die, all of them at once too: the
+inputs the tasks share are tasks that carry their value (not scattered data, which dies with
+the last worker holding it), so Dask makes them again, and it runs the lost tasks again (same
+results); a task or input Dask gives up on (its workers kept dying) is submitted again a few
+times; with no worker left the job waits for one (:data:`WORKER_WAIT`), then fails saying what
+was lost. A scheduler that cannot be reached, or that goes away, is a one-line
+:class:`~mcrt.errors.McrtError` (Dask's own log lines and tracebacks are silenced while mcrt
+uses the client); the folded tasks stay checkpointed.
 """
 
 from __future__ import annotations
@@ -57,8 +56,7 @@ POLL_SECONDS = 2.0
 #: How often Dask retries a task that raised (``Client.submit``'s ``retries``).
 RETRIES = 3
 
-#: How often a task is submitted again after Dask gave up on it (its workers kept
-#: dying: ``KilledWorker``) or cancelled it while the scheduler lives.
+#: Times a task is sent again after Dask gave up on it (``KilledWorker``) or cancelled it.
 RESUBMITS = 3
 
 #: Seconds to wait for a worker when none is left (``$MCRT_CLUSTER_WORKER_WAIT``).
@@ -317,7 +315,9 @@ class DaskExecutor:
             if not isinstance(error, KilledWorker):
                 future.result()  # the task's own error, with its traceback
             deaths = getattr(error, "allowed_failures", 0) + 1
-            why = f"Dask gave up on it after {deaths} of its workers died running it"
+            mine = getattr(error, "task", future.key) == future.key
+            why = (f"Dask gave up on it after {deaths} of its workers died running it" if mine
+                   else f"Dask gave up on its input after {deaths} of the workers loading it died")
         else:
             while True:
                 try:  # (lost with its worker since the status was read: Dask makes it again)
@@ -402,12 +402,12 @@ class DaskExecutor:
 
             content = f"mcrt-input-{tokenize(value)}"
         held = self._held.get(content)
-        if held is not None and held.status != "cancelled":
+        if held is not None and held.status not in ("error", "cancelled"):
             return held
         if isinstance(value, SceneSource):
             value = value.bundle()
             log.debug("sending scene %s to the cluster", describe(value))
-        # cancelled (its scheduler restarted?): a new key, in case the old one lingers
+        # cancelled (scheduler restarted?) or given up on (its workers died): a new key
         key = content if held is None else f"{content}-{uuid.uuid4().hex[:8]}"
         with warnings.catch_warnings():  # "large graph": carrying the value is the point
             warnings.simplefilter("ignore", UserWarning)

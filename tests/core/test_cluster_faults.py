@@ -166,6 +166,53 @@ def test_a_task_whose_workers_keep_dying_is_submitted_again(tmp_path, caplog, by
                "it; submitting it again (1 of 3)" in r.getMessage() for r in caplog.records)
 
 
+class _KillsItsLoader:
+    """A shared input whose loading in a worker process SIGKILLs that worker the
+    first ``deaths`` times (counted in files under ``folder``); it loads as 7
+    there, and as itself in this process (where the scheduler loads it too)."""
+
+    def __init__(self, folder: str, deaths: int, home: int) -> None:
+        self.folder, self.deaths, self.home = folder, deaths, home
+
+    def __reduce__(self):
+        return _load_or_die, (self.folder, self.deaths, self.home)
+
+
+def _load_or_die(folder: str, deaths: int, home: int) -> int | _KillsItsLoader:
+    if os.getpid() == home:
+        return _KillsItsLoader(folder, deaths, home)
+    runs = Path(folder)
+    count = len(list(runs.iterdir()))
+    if count < deaths:
+        (runs / str(count)).touch()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return 7
+
+
+def _plus_shared(index: int, shared: int) -> int:
+    return 10 * index + shared
+
+
+def test_a_shared_input_whose_workers_keep_dying_is_sent_again(tmp_path, caplog, by_value):
+    """The shared input's task kills the worker loading it 4 times: Dask gives up
+    on it (``KilledWorker``), and on every task that needs it. mcrt submits the
+    tasks again with the input sent anew (it reused the failed input, so every
+    task failed again at once, 4 times, and the job ended: seen once in CI in
+    test_a_reference_survives_workers_killed_one_after_another), and says that
+    the input was lost, not the task."""
+    executor = DaskExecutor.connect("local:2")
+    try:
+        with caplog.at_level("INFO", logger="mcrt"):
+            results = dict(executor.map(_plus_shared, 3, name="fragile",
+                                        shared={"shared": _KillsItsLoader(str(tmp_path), 4, os.getpid())}))
+    finally:
+        executor.close()
+    assert results == {0: 7, 1: 17, 2: 27}
+    assert len(list(tmp_path.iterdir())) == 4
+    notes = [r.getMessage() for r in caplog.records if "submitting it again" in r.getMessage()]
+    assert notes and all("its input" in note for note in notes), notes
+
+
 def test_a_task_that_always_kills_its_worker_is_one_error(tmp_path, monkeypatch, by_value):
     """A task that kills every worker running it ends the job with one line
     (here after one submission: ``RESUBMITS`` 0), not with Dask's error."""
