@@ -370,7 +370,7 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
             return f"{exr_path}, {png_path} and {heat_path} ({partial.samples} samples)"
 
         return _interrupted(stop, store, write_partial, "adaptive passes")
-    _write_or_keep(store, lambda: write(result, {}))  # the last pass's state is saved
+    _write_or_keep(store, lambda: write(result, {}), lambda: result.checkpoint)
     height, width = result.image.shape[:2]
     spp = result.spp
     rate = result.samples / result.seconds / 1e6 if result.seconds > 0 else float("inf")

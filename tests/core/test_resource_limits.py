@@ -108,17 +108,23 @@ def test_failed_output_write_keeps_the_render(tmp_path, cache, capsys, monkeypat
     assert code == 0 and traced == [], err  # written without rendering again
 
 
+@pytest.mark.parametrize("command", ["render", "adaptive"])
 def test_a_render_that_writes_its_files_copies_its_sums_for_no_checkpoint(tmp_path, cache,
-                                                                           capsys, monkeypatch):
-    """The finished render's state (a float64 copy of the film's sums, 32 MiB at
-    1024^2) is taken only when writing the outputs fails (the test above)."""
+                                                                           capsys, monkeypatch,
+                                                                           command):
+    """The finished render's state (a float64 copy of its sums: 32 MiB for a
+    1024^2 film; an adaptive render's sub-pixel sums too, which it also wrote
+    to a file after its last pass) is taken only when writing the outputs
+    fails (the test above)."""
     from mcrt.core.accumulators import FilmAccumulator
+    from mcrt.render.adaptive.sums import PixelSums
 
-    copies: list[int] = []
-    real = FilmAccumulator.state
-    monkeypatch.setattr(FilmAccumulator, "state",
-                        lambda self: (copies.append(1), real(self))[1])
-    code, _, err = run_cli(capsys, "-q", *_commands(tmp_path)["render"])
+    copies: list[str] = []
+    for owner, name in ((FilmAccumulator, "state"), (PixelSums, "arrays")):
+        real = getattr(owner, name)
+        monkeypatch.setattr(owner, name, lambda self, real=real, name=name: (
+            copies.append(name), real(self))[1])
+    code, _, err = run_cli(capsys, "-q", *_commands(tmp_path)[command])
     assert code == 0, err
     assert copies == []
 

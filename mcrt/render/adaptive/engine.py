@@ -60,9 +60,10 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     so far as ``partial`` (a pass in flight is dropped whole) and the
     :class:`~mcrt.core.job.Checkpoint` to resume from as ``state``;
     ``checkpoints`` (:class:`~mcrt.core.job.Checkpointing`) resumes from one and
-    saves them while the render runs, so that even a SIGKILL keeps the passes
-    saved (the last pass is always saved: the caller discards it once the
-    result is written). Every wavefront's
+    saves them while the render runs (paced, like a film render's: a SIGKILL
+    loses at most the passes since the last one), and the result's
+    :attr:`~.result.AdaptiveRender.checkpoint` makes the finished render's on
+    demand (for its caller to keep when writing the outputs fails). Every wavefront's
     samples depend only on (seed, pass, pixel), so a resumed render equals an
     uninterrupted one.
     """
@@ -84,8 +85,12 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     start = time.perf_counter()
 
     def finish() -> AdaptiveRender:
-        return _result(target, settings, ladder, loop.records,
-                       loop.seconds_before + time.perf_counter() - start)
+        end = time.perf_counter()
+        result = _result(target, settings, ladder, loop.records,
+                         loop.seconds_before + end - start)
+        if kept.save is not None:
+            result.state = lambda: loop.snapshot(acc, start, end)
+        return result
 
     # The accumulator and the loop state change only together, at the end of a
     # pass and with interrupts held back, so they always describe the passes
@@ -134,8 +139,8 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                 loop.advance(record, leader, batch, active_next)
             if on_pass is not None:
                 on_pass(record)
-            _save(kept.save, pacer, lambda: loop.snapshot(acc, start),
-                  last=not loop.active.size)
+            if kept.save is not None and loop.active.size:  # (the last: see finish)
+                pacer.maybe(kept.save, lambda: loop.snapshot(acc, start))
     except KeyboardInterrupt:
         k = loop.next_pass
         raise Interrupted(finish() if k > 0 else None, k, k + 1,
@@ -178,12 +183,14 @@ class _Loop:
     def nbytes(self) -> int:
         return int(self.active.nbytes + self.batch.nbytes)
 
-    def snapshot(self, acc: PixelSums, start: float) -> Checkpoint:
-        """The checkpoint of the passes done (``start``: when this run began)."""
+    def snapshot(self, acc: PixelSums, start: float, end: float | None = None) -> Checkpoint:
+        """The checkpoint of the passes done (``start``: when this run began;
+        ``end``: when its passes ended, if they did)."""
+        end = time.perf_counter() if end is None else end
         return Checkpoint(
             meta={"leader": self.leader, "next_pass": self.next_pass,
                   "records": [asdict(r) for r in self.records],
-                  "seconds": self.seconds_before + time.perf_counter() - start},
+                  "seconds": self.seconds_before + end - start},
             arrays={**acc.arrays(), "active": self.active.copy(), "batch": self.batch.copy()})
 
 
@@ -201,18 +208,6 @@ def _check_progress(acc: PixelSums, spent: int) -> None:
     """Every pass spends samples (budgets only grow: the loop terminates)."""
     if int(acc.traced.sum()) <= spent:
         raise McrtError("adaptive: a pass spent no samples; this is a bug")
-
-
-def _save(save: Callable[[Checkpoint], object] | None, pacer: CheckpointPacer,
-          snapshot: Callable[[], Checkpoint], last: bool) -> None:
-    """Checkpoint while the render runs: paced, and always after the last pass
-    (kept until the caller has written the result)."""
-    if save is None:
-        return
-    if last:
-        save(snapshot())
-    else:
-        pacer.maybe(save, snapshot)
 
 
 def _integrator_and_settings(

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ...core.job import Checkpoint  # (at run time: Dr.Jit reads the fields' types)
 from ...core.render import linear_srgb
 from ...core.stats import PixelStats
 from .settings import AdaptiveSettings
@@ -56,6 +58,16 @@ class AdaptiveRender:
     #: Pixels that pass the error test at the end (the others ran out of
     #: budget, or were only refined as neighbours), (H, W) bool.
     converged: np.ndarray
+    #: Makes the checkpoint of the finished render (on demand; given to renders
+    #: that save checkpoints).
+    state: Callable[[], Checkpoint] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def checkpoint(self) -> Checkpoint | None:
+        """The finished render's sums and loop state, to write its outputs later
+        (built when asked for: a render that writes its files never pays for a
+        copy of its sums)."""
+        return self.state() if self.state is not None else None
 
     @property
     def samples(self) -> int:
