@@ -110,7 +110,8 @@ def _render(scene, settings, seed: int, commit_seconds: list[float]) -> tuple:
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
     copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
-    return wall, len(result.passes), kernels, sum(commit_seconds), copies, result
+    commit = sum(commit_seconds) if commit_seconds else None  # (None: not timed)
+    return wall, len(result.passes), kernels, commit, copies, result
 
 
 def _report(title: str, rows: list) -> None:
@@ -121,14 +122,16 @@ def _report(title: str, rows: list) -> None:
     print("| render | wall [s] | passes | kernel execution [s] | commit [ms] | Memcpy per pass |")
     print("|---:|---:|---:|---:|---:|---:|")
     for i, (wall, count, kernels, commit_s, copies, _) in enumerate(rows):
-        print(f"| {i + 1} | {wall:.3f} | {count} | {kernels:.3f} | {1e3 * commit_s:.1f} | "
+        shown = "-" if commit_s is None else f"{1e3 * commit_s:.1f}"
+        print(f"| {i + 1} | {wall:.3f} | {count} | {kernels:.3f} | {shown} | "
               f"{copies / count:.1f} |")
     idle = [(sum(p.seconds for p in r.passes) - kernels) / count
             for _, count, kernels, _, _, r in rows]
     print(f"time per pass without a kernel running: median {1e3 * statistics.median(idle):.2f}"
           f" ms (renders: {', '.join(f'{1e3 * x:.2f}' for x in idle)})")
-    print(f"median: wall {statistics.median(r[0] for r in rows):.3f} s, commit "
-          f"{1e3 * statistics.median(r[3] for r in rows):.1f} ms per render")
+    commits = [r[3] for r in rows if r[3] is not None]
+    print(f"median: wall {statistics.median(r[0] for r in rows):.3f} s" + (
+        f", commit {1e3 * statistics.median(commits):.1f} ms per render" if commits else ""))
     print(f"pass time over {fit['passes']:.0f} passes: {1e3 * fit['intercept']:.1f} "
           f"+- {1e3 * se:.1f} ms + {1e9 * fit['slope']:.1f} ns x samples (R^2 {fit['r2']:.3f})")
 

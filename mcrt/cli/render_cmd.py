@@ -266,16 +266,16 @@ def _checkpointing(store: CheckpointStore, state: Checkpoint | None) -> Checkpoi
 
 
 def _write_or_keep(store: CheckpointStore, write: Callable[[], None],
-                   finished: Callable[[], Checkpoint | None] | None = None) -> None:
+                   finished: Callable[[], Checkpoint | None]) -> None:
     """Write a finished render's outputs, then drop its checkpoint. If writing fails
     (a full disk, a film mcrt misreads, ...), the render is kept (``finished()``, or
-    the state saved after its last pass) and the error says how to write it without
-    rendering again. ``finished`` is called only then: taken before writing, the
-    copy of a 1024^2 film's float64 sums raised the peak memory by 32-64 MiB."""
+    the last checkpoint saved if it has none) and the error says how to write it
+    without rendering again. ``finished`` is called only then: taken before writing,
+    the copy of a 1024^2 film's float64 sums raised the peak memory by 32-64 MiB."""
     try:
         write()
     except Exception as error:
-        state = finished() if finished is not None else None
+        state = finished()
         kept = store.save(state) if state is not None else store.saved
         where = (f"; the finished render is kept in {kept}: {remedy(error)} and run the same "
                  f"command again to write it without rendering") if kept else ""

@@ -203,8 +203,9 @@ def test_a_shared_input_whose_workers_keep_dying_is_sent_again(tmp_path, caplog,
     executor = DaskExecutor.connect("local:2")
     try:
         with caplog.at_level("INFO", logger="mcrt"):
+            fragile = _KillsItsLoader(str(tmp_path), 4, os.getpid())
             results = dict(executor.map(_plus_shared, 3, name="fragile",
-                                        shared={"shared": _KillsItsLoader(str(tmp_path), 4, os.getpid())}))
+                                        shared={"shared": fragile}))
     finally:
         executor.close()
     assert results == {0: 7, 1: 17, 2: 27}
