@@ -25,7 +25,7 @@ from ...samplers.kit import hash_keys_int
 from . import frozen
 from .criterion import dilate, error_ratio
 from .ladder import batch_ladder, budget_batches, pass_batch_size
-from .reconstruct import reconstruct, subpixel_filter
+from .reconstruct import reconstruct_grid, subpixel_filter
 from .result import AdaptiveRender, PassRecord
 from .settings import AdaptiveSettings
 from .sums import Pending, PixelSums
@@ -86,8 +86,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
 
     def finish() -> AdaptiveRender:
         end = time.perf_counter()
-        result = _result(target, settings, ladder, loop.records,
-                         loop.seconds_before + end - start)
+        result = _result(target, settings, ladder, loop.records, start - loop.seconds_before)
         if kept.save is not None:
             result.state = lambda: loop.snapshot(acc, start, end)
         return result
@@ -266,13 +265,16 @@ def _next_pass(acc: PixelSums, leader: int, ladder: tuple[int, ...],
 
 
 def _result(target: Target, settings: AdaptiveSettings, ladder: tuple[int, ...],
-            records: list[PassRecord], seconds: float) -> AdaptiveRender:
-    """Develop the accumulated samples into an :class:`AdaptiveRender`."""
+            records: list[PassRecord], clock: float) -> AdaptiveRender:
+    """Develop the accumulated samples into an :class:`AdaptiveRender`; its
+    ``seconds`` run from ``clock`` (a ``perf_counter`` time) to the developed
+    image, as a film render's include its film's development."""
     film, acc, sampler = target.film, target.acc, target.sampler
     width, height = (int(v) for v in film_grid_size(film))
     s, has_alpha = acc.s, mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
     ratio = error_ratio(acc.mean_y, acc.se_y, acc.counts(), settings)
     image, spp, stats, crop = _develop(film, acc, width, height, s)
+    seconds = time.perf_counter() - clock
     se_y = acc.se_y.reshape(height, width)[crop]
     converged = (ratio <= 1.0).reshape(height, width)[crop]
     nonfinite = int(stats.nonfinite.sum())
@@ -290,10 +292,8 @@ def _result(target: Target, settings: AdaptiveSettings, ladder: tuple[int, ...],
 def _develop(film: mi.Film, acc: PixelSums, width: int, height: int,
              s: int) -> tuple[np.ndarray, np.ndarray, PixelStats, tuple[slice, slice]]:
     """Reconstruct the crop window; crop per-pixel arrays to it."""
-    sub_sum, sub_count = acc.sub_pixels()
-    sums = sub_sum.reshape(height, width, s, s, acc.channels)
-    counts = sub_count.reshape(height, width, s, s)
-    image, _ = reconstruct(sums, counts, subpixel_filter(film.rfilter(), s))
+    image = reconstruct_grid(acc.grid, (height, width), s, acc.channels,
+                             subpixel_filter(film.rfilter(), s))
     b = int(film.rfilter().border_size()) if film.sample_border() else 0
     crop = (slice(b, height - b), slice(b, width - b))
     stats = acc.pixel_stats()

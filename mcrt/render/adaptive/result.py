@@ -47,6 +47,8 @@ class AdaptiveRender:
     #: Samples traced per pixel, NaN/Inf included, (H, W) int64.
     spp: np.ndarray
     passes: list[PassRecord]
+    #: Wall time of the passes and of developing the image (a film render's
+    #: includes its film's development too), a resumed render's earlier runs included.
     seconds: float
     settings: AdaptiveSettings
     sampler: str

@@ -146,7 +146,9 @@ class PixelSums:
             self.grid = mi.Float64(dr.ravel(_rows(sums)))
         else:
             # One kernel, a thread per pixel: the pixel's row of sums is contiguous
-            # (row / 8 cache lines, not one per plane).
+            # (row / 8 cache lines, not one per plane). Uncontended atomic adds:
+            # ReduceMode.NoConflicts' gather and scatter took 39 ms a render of
+            # edges.xml against 30 (kernel clocks, one render each).
             row = pending.slots * self.row
             for j, value in enumerate(sums):
                 dr.scatter_add(self.grid, value, row + j, mode=dr.ReduceMode.Direct)
