@@ -60,7 +60,7 @@ _RECORDINGS = replay.Recordings(LIMIT)  # (failures per kind: for every batch si
 
 
 def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, seed: Any,
-          moments: list[Any], tables: tuple) -> tuple[list[list[Any]], list[Any]]:
+          moments: list[Any], grid: Any, tables: tuple) -> tuple[list[list[Any]], list[Any]]:
     """One wavefront, as :func:`.wavefront.trace_wavefront` traces it, from
     device arrays only (every width from an input's: replayed for any count of
     active pixels)."""
@@ -77,7 +77,7 @@ def _body(scene: mi.Scene, integrator: Any, ids: Any, lane: Any, offset: Any, se
     values = rgb_alpha(film, samples)
     finite, cell, _ = sample_cells(samples, values, now.s)
     dr.eval(values, finite, cell)
-    return reduce_wavefront(moments, ids, m, values, finite, cell, now.s)
+    return reduce_wavefront(moments, grid, ids, m, values, finite, cell, now.s)
 
 
 def why_not(target: Target) -> str | None:
@@ -133,7 +133,8 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
         # No cyclic collection while Dr.Jit records or replays (mcrt.core.replay).
         with collection_held_back():
             sums, out = entry[2](scene, integrator, slots, dr.arange(mi.UInt32, ids.size * m),
-                                 offset, dr.opaque(mi.UInt32, seed), acc.moments, tables)
+                                 offset, dr.opaque(mi.UInt32, seed), acc.moments, acc.prior(),
+                                 tables)
             pending = acc.pending(ids, slots, m, sums, out)
     except RuntimeError as error:  # what cannot be recorded is traced, from now on
         _RECORDINGS.fail(key, kind, error, f"adaptive wavefronts of {sampler_name(sampler)}")

@@ -25,12 +25,14 @@ without a kernel running was 3.75-4.19 ms on scenes/edges.xml, now 1.69-2.32,
 benchmarks/adaptive_pass_cost.py, 3 alternated runs against the earlier tree.) A wavefront's
 results are *pending* until :meth:`PixelSums.commit`, which the engine calls
 for all of a pass's wavefronts at its end with interrupts held back, so the
-sums always describe whole passes. The commit adds a pixel's sub-pixel sums to
-its row and writes its new moments, a thread per pixel: one pixel is in one
-wavefront per pass, so each slot gets exactly one write per commit (no
-contention, the same bits as a gather, add and scatter, whatever the thread
-scheduling), and the arrays are updated in place (a scatter into an array that
-a pending gather still reads would copy it whole first). The row layout
+sums always describe whole passes. The reduction adds a wavefront's sub-pixel
+sums to its pixels' rows as the last commit left them (gathered), and the
+commit writes the new rows and moments, a thread per pixel: one pixel is in one
+wavefront per pass, so each slot gets exactly one write per commit, and the
+arrays are updated in place (a scatter into an array that a pending gather still
+reads would copy it whole first). Plain writes, not the atomic adds a commit
+made before: the commit kernels of a render of scenes/edges.xml took 17 ms
+instead of 30, the reductions 7 ms more (kernel clocks, one render each). The row layout
 touches ``row / 8`` cache lines per pixel where one array per (cell, value) took
 one each: the commit kernel of a pass of ~13k pixels (benchmarks/adaptive_pass_cost.py)
 fell from 6.1 to 4.0 ms (median, 2-core VM); a first wavefront of every pixel
@@ -75,7 +77,7 @@ class Pending:
     m: int  # samples per pixel
     moments: list[Any]  # the pixels' new moments (STAT_COLUMNS device arrays)
     host: np.ndarray  # (4, ids.size): their count, non-finite count, luminance, its error
-    cells: list[tuple[int, list[mi.Float64]]]  # (first cell, sums per cell x channel)
+    cells: list[tuple[int, list[mi.Float64]]]  # (first cell, new sums per cell x channel)
     nonfinite: int  # non-finite samples in this wavefront
 
 
@@ -116,8 +118,14 @@ class PixelSums:
         if len(values) != self.channels:
             raise McrtError(f"adaptive: expected {self.channels} channels, got {len(values)}")
         slots = to_device(mi.UInt32, ids)
-        sums, out = reduce_wavefront(self.moments, slots, m, values, finite, cell, self.s)
+        sums, out = reduce_wavefront(self.moments, self.prior(), slots, m, values, finite, cell,
+                                     self.s)
         return self.pending(ids, slots, m, sums, out)
+
+    def prior(self) -> Any:
+        """The grid a wavefront adds its sums to: None while nothing is committed
+        (the grid is zero: the reduction reads nothing)."""
+        return None if self.empty else self.grid
 
     def pending(self, ids: np.ndarray, slots: Any, m: int, sums: list[list[mi.Float64]],
                 out: list[mi.Float64]) -> Pending:
@@ -145,13 +153,10 @@ class PixelSums:
             self.moments = list(pending.moments)
             self.grid = mi.Float64(dr.ravel(_rows(sums)))
         else:
-            # One kernel, a thread per pixel: the pixel's row of sums is contiguous
-            # (row / 8 cache lines, not one per plane). Uncontended atomic adds:
-            # ReduceMode.NoConflicts' gather and scatter took 39 ms a render of
-            # edges.xml against 30 (kernel clocks, one render each).
-            row = pending.slots * self.row
-            for j, value in enumerate(sums):
-                dr.scatter_add(self.grid, value, row + j, mode=dr.ReduceMode.Direct)
+            # One kernel, a thread per pixel, writing the rows the reduction added
+            # to (contiguous: row / 8 cache lines, not one per plane). One nested
+            # scatter: a plain scatter per value would be a kernel each.
+            dr.scatter(self.grid, _rows(sums), pending.slots)
             for moment, value in zip(self.moments, pending.moments, strict=True):
                 dr.scatter(moment, value, pending.slots)
         dr.eval(self.grid, self.moments)
@@ -213,31 +218,33 @@ def _rows(columns: list[mi.Float64]) -> Any:
     return array_xf64(columns)
 
 
-def reduce_wavefront(moments: list[mi.Float64], slots: mi.UInt32, m: int,
-                     values: Sequence[mi.Float], finite: mi.Bool, cell: mi.UInt32, s: int
-                     ) -> tuple[list[list[mi.Float64]], list[mi.Float64]]:
+def reduce_wavefront(moments: list[mi.Float64], grid: mi.Float64 | None, slots: mi.UInt32,
+                     m: int, values: Sequence[mi.Float], finite: mi.Bool, cell: mi.UInt32,
+                     s: int) -> tuple[list[list[mi.Float64]], list[mi.Float64]]:
     """Device arrays only (a frozen function records it, :mod:`.frozen`): the
-    sub-pixel sums of each block of :data:`CELLS_PER_KERNEL` cells, and the
-    moments of the pixels ``slots`` continued from ``moments``
-    (:attr:`PixelSums.moments`) over a wavefront of ``m`` lanes per pixel,
-    followed by their mean luminance and its standard error."""
+    sub-pixel sums of each block of :data:`CELLS_PER_KERNEL` cells, added to the
+    pixels' rows of ``grid`` (:meth:`PixelSums.prior`), and the moments of the
+    pixels ``slots`` continued from ``moments`` (:attr:`PixelSums.moments`) over
+    a wavefront of ``m`` lanes per pixel, followed by their mean luminance and
+    its standard error."""
     blocks: list[list[mi.Float64]] = []
     out: list[mi.Float64] = []
     for lo in range(0, s * s, CELLS_PER_KERNEL):
         hi = min(lo + CELLS_PER_KERNEL, s * s)
         prior = [dr.gather(mi.Float64, x, slots) for x in moments] if lo == 0 else []
-        sums, stats = _reduce_kernel(prior, slots, m, values, finite, cell, lo, hi)
+        sums, stats = _reduce_kernel(prior, grid, slots, m, values, finite, cell, s, lo, hi)
         blocks.append(sums)
         out = out or stats
     return blocks, out
 
 
-def _reduce_kernel(prior: list[Any], slots: mi.UInt32, m: int, values: Sequence[mi.Float],
-                   finite: mi.Bool, cell: mi.UInt32, lo: int, hi: int
-                   ) -> tuple[list[mi.Float64], list[mi.Float64]]:
+def _reduce_kernel(prior: list[Any], grid: mi.Float64 | None, slots: mi.UInt32, m: int,
+                   values: Sequence[mi.Float], finite: mi.Bool, cell: mi.UInt32, s: int,
+                   lo: int, hi: int) -> tuple[list[mi.Float64], list[mi.Float64]]:
     """One thread per pixel over its ``m`` lanes: the sums of cells ``lo..hi-1``
-    (value channels, then the count, per cell) and, given the pixel's moments
-    so far (``prior``), its moments continued over the lanes (``STAT_COLUMNS``
+    (value channels, then the count, per cell), added to the pixel's row of
+    ``grid`` (the sums so far, unless None), and, given the pixel's moments so
+    far (``prior``), its moments continued over the lanes (``STAT_COLUMNS``
     arrays), its mean luminance and their standard error."""
     width = len(values) + 1
     # The pixel count from an input's width (not a host integer: a frozen
@@ -263,6 +270,9 @@ def _reduce_kernel(prior: list[Any], slots: mi.UInt32, m: int, values: Sequence[
     local = state[1]
     block = (hi - lo) * width
     sums = [local[j] for j in range(block)]
+    if grid is not None:  # (the sum so far plus this wavefront's: the bits of adding it later)
+        row = slots * (s * s * width) + lo * width
+        sums = [dr.gather(mi.Float64, grid, row + j) + x for j, x in enumerate(sums)]
     stats = list(state[2:])
     if stats:
         stats += luminance_error_device(stats)
