@@ -11,7 +11,11 @@ times after a warm-up and reports, per render:
   a render: off by default);
 * from Dr.Jit's kernel history: the kernels' execution time, and the ``Memcpy``
   kernels per pass (whole-array copies, e.g. a scatter into an array that a
-  pending gather still reads).
+  pending gather still reads);
+* where the passes' time goes, by kernel clocks: kernels as wide as the pass's
+  samples (the trace), kernels a thread per active pixel (the reduction, the
+  commit), other kernels, and the rest (no kernel running: the host), each as a
+  share of the passes' time and with its own fit against the samples.
 
 The fit's intercept moves +-1-2 ms between runs of 4 renders here (it prints
 with its standard error), as kernel times do on a shared machine. Steadier: the
@@ -24,7 +28,7 @@ alternating order, and fits each side on its own; ``on`` / ``off``: one side onl
 (``on``, the default, is what a render does).
 
     python benchmarks/adaptive_pass_cost.py [--renders 6] [--replay on|off|both]
-        [--commit-timing]
+        [--commit-timing] [--max-spp 4096]
 """
 
 from __future__ import annotations
@@ -59,12 +63,14 @@ def main() -> None:
     parser.add_argument("--replay", choices=["on", "off", "both"], default="on",
                         help="replayed wavefronts, traced ones (MCRT_REPLAY=0), or both "
                              "interleaved (default: on)")
+    parser.add_argument("--max-spp", type=int, default=AdaptiveSettings.max_spp,
+                        help="per-pixel budget (benchmarks/adaptive_efficiency.py uses 4096)")
     parser.add_argument("--commit-timing", action="store_true",
                         help="time PixelSums.commit (synchronised: slows the passes)")
     args = parser.parse_args()
     sides = ["off", "on"] if args.replay == "both" else [args.replay]
     scene = load_scene(SCENE, {})
-    settings = AdaptiveSettings()
+    settings = AdaptiveSettings(max_spp=args.max_spp)
     commit_seconds: list[float] = []
     commit = PixelSums.commit
 
@@ -87,8 +93,8 @@ def main() -> None:
         for side in sides if seed % 2 else sides[::-1]:
             os.environ[replay.ENV] = "1" if side == "on" else "0"
             rows[side].append(_render(scene, settings, seed, commit_seconds))
-    print(f"scenes/edges.xml, sobol, default settings, {args.renders} renders after a warm-up, "
-          f"Dr.Jit threads: {dr.thread_count()}")
+    print(f"scenes/edges.xml, sobol, default settings but max_spp {args.max_spp}, "
+          f"{args.renders} renders after a warm-up, Dr.Jit threads: {dr.thread_count()}")
     for side in sides:
         _report(f"wavefronts replayed ({replay.ENV}=1)" if side == "on"
                 else f"wavefronts traced ({replay.ENV}=0)", rows[side])
@@ -96,22 +102,57 @@ def main() -> None:
 
 def _render(scene, settings, seed: int, commit_seconds: list[float]) -> tuple:
     """One timed render: (wall, passes, kernel seconds, commit seconds, Memcpy kernels,
-    result)."""
+    result); each pass record gets ``kernels``: its kernel seconds by kind."""
     commit_seconds.clear()
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()  # start empty
+    history: list[dict] = []
+
+    def on_pass(record) -> None:  # the pass's kernels (its commit ran before its end)
+        kernels = dr.kernel_history()
+        history.extend(kernels)
+        record.kernels = _kinds(kernels, record.active_pixels)
+
     dr.sync_thread()
     start = time.perf_counter()
     result = render_adaptive(scene, make_sampler("sobol", settings.min_spp), settings,
-                             seed=seed)
+                             seed=seed, on_pass=on_pass)
     dr.sync_thread()
     wall = time.perf_counter() - start
-    history = dr.kernel_history()
+    history.extend(dr.kernel_history())
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernels = sum(k.get("execution_time", 0.0) for k in history) / 1e3
     copies = sum(k["type"] == dr.KernelType.Memcpy for k in history)
     commit = sum(commit_seconds) if commit_seconds else None  # (None: not timed)
     return wall, len(result.passes), kernels, commit, copies, result
+
+
+#: What a pass's kernels are, by their width (``_kinds``).
+KINDS = ("kernels a lane per sample", "kernels a thread per active pixel", "other kernels")
+
+
+def _kinds(kernels: list[dict], pixels: int) -> tuple[float, float, float]:
+    """Seconds of a pass's kernels by kind: wider than its active pixels (the
+    trace), a thread per pixel at most (reduction, commit), and the rest (memsets,
+    one-element kernels)."""
+    out = [0.0, 0.0, 0.0]
+    for k in kernels:
+        size, seconds = int(k.get("size", 0)), k.get("execution_time", 0.0) / 1e3
+        jit = k["type"] == dr.KernelType.JIT
+        out[0 if jit and size > pixels else 1 if jit and size > 1 else 2] += seconds
+    return out[0], out[1], out[2]
+
+
+def _breakdown(passes: list) -> None:
+    """Each kind's share of the passes' time and its own line against samples."""
+    total = sum(p.seconds for p in passes)
+    samples = [p.samples for p in passes]
+    parts = [[p.kernels[i] for p in passes] for i in range(3)]
+    parts.append([p.seconds - sum(p.kernels) for p in passes])
+    for label, seconds in zip((*KINDS, "no kernel running (host)"), parts, strict=True):
+        fit = fit_cost(samples, seconds)
+        print(f"  {label}: {100 * sum(seconds) / total:.1f}% of the passes' time, "
+              f"{1e3 * fit.fixed:.2f} ms + {1e9 * fit.per_unit:.1f} ns x samples")
 
 
 def _report(title: str, rows: list) -> None:
@@ -134,6 +175,8 @@ def _report(title: str, rows: list) -> None:
         f", commit {1e3 * statistics.median(commits):.1f} ms per render" if commits else ""))
     print(f"pass time over {fit['passes']:.0f} passes: {1e3 * fit['intercept']:.1f} "
           f"+- {1e3 * se:.1f} ms + {1e9 * fit['slope']:.1f} ns x samples (R^2 {fit['r2']:.3f})")
+    print("where it goes (kernel clocks, all passes):")
+    _breakdown(passes)
 
 
 if __name__ == "__main__":
