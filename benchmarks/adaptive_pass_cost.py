@@ -13,9 +13,11 @@ times after a warm-up and reports, per render:
   kernels per pass (whole-array copies, e.g. a scatter into an array that a
   pending gather still reads);
 * where the passes' time goes, by kernel clocks: kernels as wide as the pass's
-  samples (the trace), kernels a thread per active pixel (the reduction, the
-  commit), other kernels, and the rest (no kernel running: the host), each as a
-  share of the passes' time and with its own fit against the samples.
+  samples (the trace), kernels a thread per active pixel - the reduction (few
+  inputs, a sum per sub-pixel value out) and the commit (those sums in, a
+  scatter into the grid) -, other kernels, and the rest (no kernel running: the
+  host), each as a share of the passes' time and with its own fit against the
+  samples.
 
 The fit's intercept moves +-1-2 ms between runs of 4 renders here (it prints
 with its standard error), as kernel times do on a shared machine. Steadier: the
@@ -127,27 +129,33 @@ def _render(scene, settings, seed: int, commit_seconds: list[float]) -> tuple:
     return wall, len(result.passes), kernels, commit, copies, result
 
 
-#: What a pass's kernels are, by their width (``_kinds``).
-KINDS = ("kernels a lane per sample", "kernels a thread per active pixel", "other kernels")
+#: What a pass's kernels are (``_kinds``).
+KINDS = ("the trace (a lane per sample)", "the reduction (a thread per pixel)",
+         "the commit (a thread per pixel)", "other kernels")
 
 
-def _kinds(kernels: list[dict], pixels: int) -> tuple[float, float, float]:
+def _kinds(kernels: list[dict], pixels: int) -> tuple[float, ...]:
     """Seconds of a pass's kernels by kind: wider than its active pixels (the
-    trace), a thread per pixel at most (reduction, commit), and the rest (memsets,
-    one-element kernels)."""
-    out = [0.0, 0.0, 0.0]
+    trace); a thread per pixel at most, with more outputs than inputs (the
+    reduction: a sum per sub-pixel value out) or not (the commit: those sums in,
+    scattered); and the rest (memsets, one-element kernels)."""
+    out = [0.0] * len(KINDS)
     for k in kernels:
         size, seconds = int(k.get("size", 0)), k.get("execution_time", 0.0) / 1e3
-        jit = k["type"] == dr.KernelType.JIT
-        out[0 if jit and size > pixels else 1 if jit and size > 1 else 2] += seconds
-    return out[0], out[1], out[2]
+        if k["type"] != dr.KernelType.JIT or size <= 1:
+            out[3] += seconds
+        elif size > pixels:
+            out[0] += seconds
+        else:
+            out[1 if k["output_count"] > k["input_count"] else 2] += seconds
+    return tuple(out)
 
 
 def _breakdown(passes: list) -> None:
     """Each kind's share of the passes' time and its own line against samples."""
     total = sum(p.seconds for p in passes)
     samples = [p.samples for p in passes]
-    parts = [[p.kernels[i] for p in passes] for i in range(3)]
+    parts = [[p.kernels[i] for p in passes] for i in range(len(KINDS))]
     parts.append([p.seconds - sum(p.kernels) for p in passes])
     for label, seconds in zip((*KINDS, "no kernel running (host)"), parts, strict=True):
         fit = fit_cost(samples, seconds)
