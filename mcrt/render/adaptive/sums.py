@@ -31,8 +31,9 @@ commit writes the new rows and moments, a thread per pixel: one pixel is in one
 wavefront per pass, so each slot gets exactly one write per commit, and the
 arrays are updated in place (a scatter into an array that a pending gather still
 reads would copy it whole first). Plain writes, not the atomic adds a commit
-made before: the commit kernels of a render of scenes/edges.xml took 17 ms
-instead of 30, the reductions 7 ms more (kernel clocks, one render each). The row layout
+made before: on scenes/edges.xml the commit went from 5.0-5.2% to 3.2-3.4% of
+the passes' time and the reduction from 6.3-6.4% to 7.0-7.2%
+(benchmarks/adaptive_pass_cost.py, 3 alternated pairs). The row layout
 touches ``row / 8`` cache lines per pixel where one array per (cell, value) took
 one each: the commit kernel of a pass of ~13k pixels (benchmarks/adaptive_pass_cost.py)
 fell from 6.1 to 4.0 ms (median, 2-core VM); a first wavefront of every pixel
@@ -282,8 +283,8 @@ def _reduce_kernel(prior: list[Any], grid: mi.Float64 | None, slots: mi.UInt32, 
 
 def _rows_of(grid: mi.Float64, slots: mi.UInt32, row: int, start: int, count: int) -> list[Any]:
     """Values ``start .. start + count - 1`` of the pixels' rows of ``grid``: a
-    whole row as one nested gather (packet loads: the reduction kernel took ~0.6 ms
-    more a pass reading it value by value), else value by value."""
+    whole row as one nested gather (packet loads and a transpose, not a gather
+    instruction per value), else value by value."""
     if start == 0 and count == row:
         array_xf64: Any = mi.ArrayXf64  # (Mitsuba's stubs do not declare it)
         rows: Any = dr.gather(array_xf64, grid, slots, shape=(row, dr.width(slots)))
