@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import time
 from dataclasses import MISSING, asdict, fields
 from pathlib import Path
 
@@ -328,6 +329,24 @@ def test_first_pass_equals_a_fixed_render(edges):
     fixed = render_film(edges, make_sampler("jittered", 16), seed=5)
     assert len(result.passes) == 1 and (result.spp == 16).all()
     assert np.allclose(result.rgb, fixed.rgb, rtol=1e-5, atol=1e-6)
+
+
+def test_the_render_s_seconds_include_developing_its_image(edges, monkeypatch):
+    """As a film render's seconds include its film's development, an adaptive
+    render's include its reconstruction: slowed down by 0.3 s, the reported
+    seconds exceed the passes' by at least that (they did not before)."""
+    from mcrt.render.adaptive import engine
+
+    develop = engine.reconstruct_grid
+
+    def slow(*args, **kwargs):
+        time.sleep(0.3)
+        return develop(*args, **kwargs)
+
+    monkeypatch.setattr(engine, "reconstruct_grid", slow)
+    result = render_adaptive(edges, make_sampler("jittered", 16),
+                             AdaptiveSettings(threshold=1e9), seed=5)
+    assert result.seconds >= sum(p.seconds for p in result.passes) + 0.3
 
 
 def test_constant_scene_stops_after_the_first_pass():
