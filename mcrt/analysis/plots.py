@@ -48,6 +48,14 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 120) -> No
     from ..core.engine import deferred_interrupts
 
     with deferred_interrupts(), atomic_path(path) as tmp:
+        engine = fig.get_layout_engine()
+        if engine is not None:
+            # Lay the figure out here, at the saved resolution, and save it without
+            # its layout engine: savefig would otherwise draw every artist twice,
+            # once (output off) to lay it out, resampling every image both times.
+            fig.set_dpi(dpi)
+            engine.execute(fig)
+            fig.set_layout_engine(None)
         fig.savefig(tmp, format="png", dpi=dpi)
 
 

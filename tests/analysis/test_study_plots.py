@@ -257,6 +257,24 @@ FIGURES = {"error_vs_spp": lambda r: study_figures.error_figure(r, "spp"),
            "images_cornell_box": lambda r: study_figures.images_figure(r, "cornell_box")}
 
 
+@pytest.mark.parametrize("name", ["error_vs_time", "images_checkerboard"])
+def test_a_figure_is_drawn_once_and_saved_as_matplotlib_saves_it(flagged, name, tmp_path,
+                                                                   monkeypatch):
+    """save_figure lays the figure out itself, then draws it once: the PNG has the
+    bytes of matplotlib's own savefig, which draws a constrained-layout figure
+    twice (once with its output off, to lay it out, resampling every image)."""
+    from matplotlib.figure import Figure
+
+    FIGURES[name](flagged).savefig(tmp_path / "matplotlib.png", format="png", dpi=120)
+    draws = []
+    draw = Figure.draw
+    monkeypatch.setattr(Figure, "draw", lambda fig, renderer: (draws.append(1),
+                                                               draw(fig, renderer))[1])
+    plots.save_figure(FIGURES[name](flagged), tmp_path / "ours.png", dpi=120)
+    assert len(draws) == 1
+    assert (tmp_path / "ours.png").read_bytes() == (tmp_path / "matplotlib.png").read_bytes()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(FIGURES))
 def test_no_text_overlaps(flagged, name):
