@@ -39,7 +39,8 @@ def new_figure(width: float, height: float) -> Figure:
 
 
 def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 120) -> None:
-    """Write ``fig`` as PNG to ``path`` atomically.
+    """Write ``fig`` as PNG to ``path`` atomically (a figure with a layout engine
+    is laid out at ``dpi`` and left so, without the engine: drawn once).
 
     Ctrl-C and termination signals wait until the file is written: raised inside
     matplotlib's drawing, where its C++ code converts Python objects, the
