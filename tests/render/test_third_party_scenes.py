@@ -12,6 +12,7 @@ difference of 5 SE has probability below 1e-6 under the null hypothesis.
 from __future__ import annotations
 
 import logging
+import re
 import shutil
 from pathlib import Path
 
@@ -158,10 +159,14 @@ def test_a_medium_inside_a_dielectric_scatters_indirect_light(tmp_path):
     alone = tmp_path / "alone.xml"
     alone.write_text(text[:text.index('<shape type="rectangle">')] + "</scene>\n")
     assert plan_scene(alone).plan.on("indirect")
-    clear = tmp_path / "clear.xml"  # ... and without the medium, nothing does
+    clear = tmp_path / "clear.xml"  # ... without the medium, light reflects inside the glass
     text = alone.read_text()
     clear.write_text(text[:text.index("<medium")] + text[text.index("</medium>") + 9:])
-    assert not plan_scene(clear).plan.on("indirect")
+    assert plan_scene(clear).plan.on("indirect")
+    opaque = tmp_path / "opaque.xml"  # ... and a diffuse ball alone lights nothing again
+    opaque.write_text(re.sub(r'<bsdf type="dielectric">.*?</bsdf>', '<bsdf type="diffuse"/>',
+                             clear.read_text()))
+    assert not plan_scene(opaque).plan.on("indirect")
     # path ignores media, and mcrt says so.
     path = variant(tmp_path, MEDIUM, 'type="volpath"', 'type="path"', "path.xml")
     assert any("ignores them" in n for n in plan_scene(path).plan.notes)

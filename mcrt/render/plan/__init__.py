@@ -21,7 +21,8 @@ motion        a moving shape (``mcrt_velocity`` ...) one sub-frame, shapes at th
               and an open shutter, streak >= 0.25 px shutter-open pose
 indirect      a ``path`` integrator deeper than 2    the shortest path the remaining
               and at least two reflecting shapes     effects need (``path`` and
-              (or a mesh, which may see itself);     ``direct`` only: others are
+              (or one that may light itself: not     ``direct`` only: others are
+              flat, nor convex, outward and opaque);
               any integrator (or one a wrapper       rendered as authored)
               holds) deeper than 2, with such
               shapes or participating media

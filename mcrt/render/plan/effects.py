@@ -232,7 +232,7 @@ def decide_motion(d: Decisions, facts: SceneFacts) -> None:
 
 def decide_indirect(d: Decisions, facts: ScanFacts, author: AuthoredIntegrator) -> None:
     kind, depth, scan = author.kind, author.max_depth, facts.scan
-    interreflect = scan.reflecting_shapes >= 2 or scan.mesh_shapes > 0
+    interreflect = scan.reflecting_shapes >= 2 or bool(scan.self_lighting)
     if not author.replannable:
         _decide_authored_indirect(d, scan, author, interreflect)
         return
@@ -240,7 +240,11 @@ def decide_indirect(d: Decisions, facts: ScanFacts, author: AuthoredIntegrator) 
         reason = f"the scene's integrator is {kind}" + (
             f" with max_depth {depth}" if kind == "path" else "")
     elif not interreflect:
-        reason = "no surface can light another (fewer than two reflecting shapes)"
+        reason = ("no surface can light another (fewer than two reflecting shapes, "
+                  "none that can light itself)")
+    elif scan.reflecting_shapes < 2:
+        reason = (f"{scan.self_lighting[0]} can light itself, and a path integrator of "
+                  f"max_depth {depth}")
     else:
         reason = f"{scan.reflecting_shapes} reflecting shapes and a path integrator of " \
                  f"max_depth {depth}"

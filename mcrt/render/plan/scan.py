@@ -31,7 +31,14 @@ SPECULAR = {"conductor", "dielectric", "thindielectric", "plastic", "polarizer",
 DIELECTRIC = {"dielectric", "roughdielectric", "thindielectric"}
 #: Emitters that light from an area (a BSDF sample helps them through MIS).
 EXTENDED_EMITTERS = {"area", "constant", "envmap", "sunsky", "directionalarea"}
-MESH_SHAPES = {"obj", "ply", "serialized", "mesh", "merge", "shapegroup", "instance"}
+#: Shapes that cannot light themselves whatever their BSDF: flat ones.
+FLAT_SHAPES = {"rectangle", "disk"}
+#: Closed convex shapes: with outward normals and a one-sided opaque BSDF only their
+#: outside reflects, and no point of it sees another.
+CONVEX_SHAPES = {"sphere", "cube"}
+#: BSDFs that reflect on the side of the normal only and transmit nothing.
+ONE_SIDED_OPAQUE = {"diffuse", "conductor", "roughconductor", "plastic", "roughplastic",
+                    "pplastic"}
 #: Integrators the plan may replace; any other is rendered as authored.
 REPLANNABLE = {"path", "direct"}
 #: ``max_depth`` of Mitsuba 3.9.1's integrators when the scene sets none (-1:
@@ -65,7 +72,9 @@ class Scan:
     specular: list[str] = field(default_factory=list)
     dielectric: bool = False
     reflecting_shapes: int = 0
-    mesh_shapes: int = 0
+    #: Reflecting shapes one point of which may light another of the same shape
+    #: (:func:`can_light_itself`), as "plugin (why)".
+    self_lighting: list[str] = field(default_factory=list)
     motions: dict[int, Motion] = field(default_factory=dict)  # shape node -> motion
     media: list[str] = field(default_factory=list)  # "homogeneous (interior of 'glass')", ...
 
@@ -153,7 +162,28 @@ def _scan_shape(scan: Scan, desc: SceneDescription, node: int, props: mi.Propert
             scan.area_lights.append((node, j))
     if not emitters:
         scan.reflecting_shapes += 1
-        scan.mesh_shapes += name in MESH_SHAPES
+        why = can_light_itself(desc, props)
+        if why:
+            scan.self_lighting.append(f"{props.id() or name} ({why})")
+
+
+def can_light_itself(desc: SceneDescription, props: mi.Properties) -> str:
+    """Why a reflecting shape may light itself (light leaving one of its points
+    reaching another), or "" when it cannot: a flat shape, or a closed convex one
+    with outward normals and a one-sided opaque BSDF. Any other shape is assumed
+    to (a mesh, an open cylinder, a curve, a plugin mcrt does not know), which
+    costs indirect bounces but never loses light."""
+    name = props.plugin_name()
+    if name in FLAT_SHAPES:
+        return ""
+    if name not in CONVEX_SHAPES:
+        return "not known to be flat or convex"
+    if "flip_normals" in props and bool(props["flip_normals"]):
+        return "normals flipped: its inside reflects"
+    bsdfs = [desc.nodes[j].props.plugin_name() for _, j in children(desc, props)
+             if desc.nodes[j].type == mi.ObjectType.BSDF]
+    other = [b for b in bsdfs if b not in ONE_SIDED_OPAQUE]
+    return f"a {other[0]} BSDF may reflect or pass light inside" if other else ""
 
 
 def environment_emitters(scan: Scan) -> list[str]:
