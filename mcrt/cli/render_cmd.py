@@ -142,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
                                    adaptive_settings)
         check_replaces_same(exr_path, metadata, named=bool(args.output))
     note_first_run()
+    log.info("plan: %s", planned.plan.summary())
     if adaptive_settings is not None:
         metadata["plan"] = planned.plan.to_json()
         key = render_key(args.scene, params, overrides, name, 0, args.seed, None,
@@ -158,7 +159,6 @@ def run(args: argparse.Namespace) -> int:
     store, state = _resumable(args, exr_path, key, spp, stem)
     if state is not None:
         log.info("resuming after pass %d of %d", state.meta["done"], state.meta["settings"][1])
-    log.info("plan: %s", ", ".join(planned.plan.effects_on))
 
     tasks = _pass_tasks(args, planned, params, overrides, name, sampler, spp) if cluster \
         else None

@@ -87,6 +87,16 @@ class RenderPlan:
     def effects_on(self) -> list[str]:
         return [name for name, e in self.effects.items() if e.on]
 
+    def summary(self) -> str:
+        """One line for a render's log: the effects on, and the integrator when it
+        is not the scene's own (``mcrt plan`` says why at length)."""
+        text = ", ".join(self.effects_on) or "no effect"
+        kind = str(self.integrator["type"])
+        if not self.scene_integrator.startswith(kind):  # "path (default)", "moment(path)"
+            text += (f"; integrator {kind} in place of the scene's {self.scene_integrator}: "
+                     f"{self.integrator_reason}")
+        return text
+
     def camera_dimensions(self) -> list[Dimension]:
         """Sampler calls a camera sample makes before the integrator runs."""
         dims = [Dimension("film", 2)]
