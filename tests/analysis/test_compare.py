@@ -6,6 +6,7 @@ import csv
 import fnmatch
 import json
 import math
+import os
 import types
 import typing
 from pathlib import Path
@@ -420,3 +421,35 @@ def test_a_study_plans_each_scene_once(tmp_path, monkeypatch):
     counts = count_plans(monkeypatch)
     assert main(["-q", "compare", str(config), "-o", str(tmp_path / "out")]) == 0
     assert counts == {str(CHECKERBOARD): 2}  # two scenes: one plan each
+
+
+def test_a_black_scene_is_studied_to_the_end(tmp_path):
+    """A scene without a light renders black, as does its reference: HDR-FLIP
+    has no exposure range for such a reference and its library aborted the
+    process (no exception: a subprocess here, so the suite survives that). Now
+    the study completes, every error is 0 and the error plots say so."""
+    import subprocess
+    import sys
+
+    scene = tmp_path / "unlit.xml"
+    scene.write_text("""<scene version="3.0.0">
+    <integrator type="path"/>
+    <sensor type="perspective"><float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/>
+            <rfilter type="box"/></film>
+    </sensor>
+    <shape type="sphere"><bsdf type="diffuse"/></shape>
+</scene>""")
+    config = _config(tmp_path, study_toml(scene, params=None))
+    env = {**os.environ, "MCRT_CACHE_DIR": str(tmp_path / "cache")}
+    run = subprocess.run([sys.executable, "-m", "mcrt", "-q", "compare", str(config),
+                          "-o", str(tmp_path / "out")], capture_output=True, text=True,
+                         env=env, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "Warning" not in run.stderr  # (matplotlib's about log axes without data)
+    data = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert len(data["cells"]) == 4
+    assert all(cell["mse"] == 0 and cell["delta_e"] == 0 for cell in data["cells"])
+    assert (tmp_path / "out" / "report.html").stat().st_size > 0

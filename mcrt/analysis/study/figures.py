@@ -265,7 +265,11 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
         order = [text for _, text in sorted(spp_labels, key=lambda p: p[0])]
         _label_placer(ax, order, np.array(points, float))
     ax.set_xscale("log")
-    ax.set_yscale("log")
+    if floor > 0 or any(v > 0 for _, v in points):
+        ax.set_yscale("log")
+    else:  # (a black scene: no error at all, nothing a log axis could show)
+        ax.text(0.5, 0.7, "every render equals the reference: MSE 0", transform=ax.transAxes,
+                ha="center", va="center", fontsize=9, color="0.3")
     ax.set_xlabel("render time (s): median, 95% interval" if time else "samples per pixel (spp)",
                   fontsize=9)
     ax.set_ylabel("MSE (reference noise removed), \u00b11 s.e.", fontsize=9)

@@ -64,17 +64,34 @@ def viewer_assets() -> tuple[str, str]:
     return (here / "viewer.css").read_text(encoding="utf-8"), script
 
 
+#: HDR-FLIP takes its exposure range from the reference's largest luminance
+#: ``Y_max`` and its median clamped to float32's epsilon (1.19e-7): below that
+#: ``Y_max`` the range is empty and the library aborts the process (not an
+#: exception). References whose largest luminance is under this bound (black
+#: scenes) are compared at exposure 0, as the PNGs show them.
+FLIP_DARKEST_RANGE = 1e-6
+
+#: HDR-FLIP's parameters for a reference darker than :data:`FLIP_DARKEST_RANGE`:
+#: exposure 0 alone (the library needs two exposures; one gives no error at all).
+FLIP_AT_EXPOSURE_0 = {"startExposure": 0.0, "stopExposure": 0.0, "numExposures": 2}
+
+
 def flip_map(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, float]:
     """HDR-FLIP error map (H, W) and its mean, of ``image`` against ``reference``
-    (non-finite pixels taken as the reference's, negative values as 0)."""
+    (non-finite pixels taken as the reference's, negative values as 0; a reference
+    with no light to speak of is compared at exposure 0, see
+    :data:`FLIP_DARKEST_RANGE`)."""
     import flip_evaluator
 
     ref = np.clip(np.nan_to_num(np.asarray(reference, np.float32), nan=0.0), 0, None)
     img = np.asarray(image, np.float32)
     img = np.clip(np.where(np.isfinite(img), img, ref), 0, None).astype(np.float32)
+    brightest = float(np.max(ref[..., :3] @ np.asarray(LUMINANCE_WEIGHTS, np.float32),
+                             initial=0.0))
+    parameters = FLIP_AT_EXPOSURE_0 if brightest < FLIP_DARKEST_RANGE else {}
     error, mean, _ = flip_evaluator.evaluate(np.ascontiguousarray(ref),
                                              np.ascontiguousarray(img), "HDR",
-                                             applyMagma=False)
+                                             applyMagma=False, parameters=parameters)
     return np.asarray(error, np.float32).reshape(ref.shape[:2]), float(mean)
 
 
