@@ -51,6 +51,7 @@ def run_from(args: argparse.Namespace) -> int:
     _note_scene_changes(words, header, source)
     extra = ["--cluster", args.cluster] if getattr(args, "cluster", None) else []
     log.info("rendering again: %s", header[COMMAND])
+    image: np.ndarray | None
     if header.get("mcrt_kind") == "study_mean":
         out, image = _mean_over_seeds(words, header, stem, extra)
     else:
@@ -60,8 +61,23 @@ def run_from(args: argparse.Namespace) -> int:
         if code:
             return code
         out = stem.with_suffix(".exr")
-        image = read_exr(out)[0]["rgb"]
-    return _compare(out, image, source, layers.get("rgb"))
+        image = _film_image(read_exr(out)[0])
+    return _compare(out, image, source, _film_image(layers))
+
+
+#: The film's own channels when they are not R, G, B [A] (the ``rgb`` layer): the
+#: unprefixed channels of an XYZ, XYZA or luminance-alpha film, in this order.
+_FILM_CHANNELS = ("X", "Y", "Z", "A")
+
+
+def _film_image(layers: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The film's image among :func:`~mcrt.io.read_exr`'s layers: the ``rgb`` layer
+    (R G B [A], or a luminance film's Y), else the film's unprefixed channels
+    stacked (X Y Z [A], Y A); None when the file has neither."""
+    if "rgb" in layers:
+        return layers["rgb"]
+    names = [c for c in _FILM_CHANNELS if c in layers]
+    return np.stack([layers[c] for c in names], axis=-1) if names else None
 
 
 def _refuse_settings(args: argparse.Namespace, source: Path) -> None:
@@ -127,10 +143,12 @@ def _mean_over_seeds(words: list[str], header: dict, stem: Path, extra: list[str
     return out, views.mean
 
 
-def _compare(out: Path, image: np.ndarray, source: Path, original: np.ndarray | None) -> int:
+def _compare(out: Path, image: np.ndarray | None, source: Path, original: np.ndarray | None
+             ) -> int:
     """Say whether ``image`` (written to ``out``) equals ``source``'s pixels bit for bit."""
-    if original is None:
-        raise McrtError(f"{source} has no image (R, G, B) to compare with")
+    if original is None or image is None:
+        raise McrtError(f"{source if original is None else out} has no film image (R G B, "
+                        f"X Y Z or Y) to compare")
     new = np.asarray(image, np.float32)
     old = np.asarray(original, np.float32)
     channels = min(new.shape[-1], old.shape[-1]) if new.ndim == 3 else None

@@ -143,6 +143,24 @@ def test_from_carries_the_variant_a_plugin_and_motion_blur(capsys, tmp_path):
     assert code == 0 and "bit for bit" in out, out
 
 
+@pytest.mark.parametrize("pixel_format", ["xyz", "xyza", "luminance_alpha"])
+def test_from_compares_a_film_s_own_channels(capsys, pixel_format):
+    """Films whose channels are not R G B [A] (read back as X, Y, Z, A layers):
+    --from compares those, bit for bit, and sees a changed one."""
+    scene = Path("box.xml")
+    scene.write_text(CORNELL.read_text().replace('name="pixel_format" value="rgb"',
+                                                 f'name="pixel_format" value="{pixel_format}"'))
+    assert run_cli(capsys, "render", str(scene), "-D", "res=16", "--spp", "4", "-o", "a")[0] == 0
+    layers, header = read_exr(Path("a.exr"))
+    assert "rgb" not in layers and "Y" in layers
+    code, out, _ = _again(capsys, Path("a.exr"))
+    assert code == 0 and "the same pixels as a.exr, bit for bit" in out, out
+    layers["Y"][3, 5] += 1.0
+    write_exr(Path("b.exr"), layers, header)
+    code, out, _ = _again(capsys, Path("b.exr"))
+    assert code == 1 and "1 of 256 pixels differ" in out, out
+
+
 def test_from_renders_a_reference_again_without_its_cache(capsys):
     assert run_cli(capsys, "reference", str(CORNELL), "-D", "res=16", "--spp", "32",
                    "--spp-per-pass", "8", "-o", "ref")[0] == 0
