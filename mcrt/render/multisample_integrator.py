@@ -193,12 +193,19 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Visibility for every lane, shading for one representative per group."""
-        lanes = dr.width(ray.o)
-        layout = ms.wavefront_layout(scene, lanes)
-        if layout.group == 1:  # one sample per pixel: nothing to share
+        lanes = max(dr.width(ray.o), dr.width(ray.d))
+        if lanes == 1 and sampler.wavefront_size() > 1:
+            # One ray for every sample (a radiance meter's): no surfaces to tell
+            # apart, every lane shaded by the nested integrator's own samples.
+            layout = ms.wavefront_layout(scene, sampler.wavefront_size())
+            shaded_per_pixel: Any = dr.full(mi.UInt32, layout.group, layout.pixels)
+        else:
+            layout = ms.wavefront_layout(scene, lanes)
+            shaded_per_pixel = dr.ones(mi.UInt32, layout.pixels) if layout.group == 1 else None
+        if shaded_per_pixel is not None:  # nothing to share
             spec, valid, aovs = integrator_sample(self.nested, scene, sampler, ray, medium,
                                                   active)
-            self._count(layout, dr.ones(mi.UInt32, layout.pixels))
+            self._count(layout, shaded_per_pixel)
             return spec, valid, aovs
         dr.eval(ray)  # once: keys, distances and the compaction all read it
         keys = ms.surface_keys(scene, ray, self.group_by, active)

@@ -221,6 +221,35 @@ def test_cli_multisample(tmp_path, capsys):
     assert code != 0 and "cannot be combined" in err
 
 
+def test_a_radiance_meter_is_multisampled_and_counted_lane_by_lane(tmp_path, capsys):
+    """A radiance meter traces one ray for every sample (Dr.Jit keeps it one
+    lane wide): nothing to share, each sample shaded, counted as such (it said
+    '1 shading evaluations for 1 samples' at 16 spp) and the same pixel as
+    without --multisample, bit for bit."""
+    scene = tmp_path / "meter.xml"
+    scene.write_text("""<scene version="3.0.0">
+        <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+        <sensor type="radiancemeter">
+            <point name="origin" x="0" y="0" z="4"/><vector name="direction" x="0" y="0" z="-1"/>
+            <film type="hdrfilm"><integer name="width" value="1"/>
+                <integer name="height" value="1"/><rfilter type="box"/></film>
+        </sensor>
+        <emitter type="constant"/>
+        <shape type="sphere"><bsdf type="diffuse"/></shape>
+    </scene>""")
+    code, out, err = run_cli(capsys, "render", str(scene), "--multisample", "--spp", "16", "-q",
+                             "-o", str(tmp_path / "ms"))
+    assert code == 0, err
+    assert "multisample: 16 shading evaluations for 16 samples" in out
+    code, _, err = run_cli(capsys, "render", str(scene), "--spp", "16", "-q",
+                           "-o", str(tmp_path / "plain"))
+    assert code == 0, err
+    from mcrt.io import read_exr
+
+    ms_pixel, plain = (read_exr(tmp_path / f"{n}.exr")[0]["rgb"] for n in ("ms", "plain"))
+    assert np.array_equal(ms_pixel.view(np.uint32), plain.view(np.uint32))
+
+
 def test_multisampling_a_scene_with_shading_noise_says_what_it_costs(tmp_path, capsys):
     """Soft shadows and indirect light are sampled at the shading rate under
     --multisample: the command says so; over noise-free shading (the checker
