@@ -221,6 +221,14 @@ def import_up_front(modules: Sequence[str], needed: int, what: str) -> None:
             raise
 
 
+def speed(seconds: float, rate: float) -> str:
+    """``time 1.25 s  3.36 M samples/s``; a render under 0.1 s in ms, under 0.1 M
+    samples/s in k samples/s (not ``0.00``)."""
+    time = f"{seconds:.2f} s" if seconds >= 0.1 else f"{seconds * 1e3:.3g} ms"
+    rate_text = f"{rate / 1e6:.2f} M" if rate >= 1e5 else f"{rate / 1e3:.3g} k"
+    return f"time {time}  {rate_text} samples/s"
+
+
 def note_first_run() -> None:
     """A note before the first render on this machine: Dr.Jit compiles its kernels
     then (cached in ``~/.drjit`` for later runs), which makes it seem slow."""

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"reference {width}x{height}  sampler {ref.sampler}  {spp_text}  passes {ref.passes} "
           f"({ref.plan.describe() if ref.plan else ''})  samples {ref.drawn_samples}"
           + (f" ({nonfinite} non-finite, excluded)" if nonfinite else ""))
-    print(f"render time {ref.seconds:.2f} s  {ref.samples_per_second / 1e6:.2f} M samples/s  "
+    print(f"render {_common.speed(ref.seconds, ref.samples_per_second)}  "
           f"mean stderr {float(np.mean(ref.standard_error)):.3g}  "
           f"max stderr {float(np.max(ref.standard_error)):.3g}")
     print(f"wrote {out}")

@@ -180,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
                    lambda: result.checkpoint)
     height, width = result.image.shape[:2]
     print(f"sampler {name}  spp {result.spp}  {width}x{height}  passes {result.passes}  "
-          f"time {result.seconds:.2f} s  {result.samples_per_second / 1e6:.2f} M samples/s")
+          f"{_common.speed(result.seconds, result.samples_per_second)}")
     if result.nonfinite_samples:
         print(f"non-finite samples: {result.nonfinite_samples} (NaN/Inf, left out of the image; "
               f"{int((result.nonfinite > 0).sum())} pixels affected)")
@@ -373,10 +373,10 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     _write_or_keep(store, lambda: write(result, {}), lambda: result.checkpoint)
     height, width = result.image.shape[:2]
     spp = result.spp
-    rate = result.samples / result.seconds / 1e6 if result.seconds > 0 else float("inf")
+    rate = result.samples / result.seconds if result.seconds > 0 else float("inf")
     print(f"sampler {name}  adaptive  spp mean {spp.mean():.1f} (min {spp.min()}, max "
           f"{spp.max()})  {width}x{height}  passes {len(result.passes)}  "
-          f"time {result.seconds:.2f} s  {rate:.2f} M samples/s")
+          f"{_common.speed(result.seconds, rate)}")
     if result.nonfinite.sum():
         print(f"non-finite samples: {int(result.nonfinite.sum())} (NaN/Inf, left out; "
               f"{int((result.nonfinite > 0).sum())} pixels affected, see layer 'nonfinite')")

@@ -179,3 +179,10 @@ def test_adaptive_render_notes_nothing_about_a_sample_count_it_does_not_use(tmp_
                            "--spp", "128", "-D", "width=16", "-D", "height=16",
                            "-o", str(tmp_path / "a"))
     assert code == 0 and "rounding up" not in err, err
+
+
+def test_a_tiny_render_s_speed_is_not_printed_as_zero():
+    from mcrt.cli._common import speed
+
+    assert speed(1.25, 3.36e6) == "time 1.25 s  3.36 M samples/s"
+    assert speed(0.00359, 4457.0) == "time 3.59 ms  4.46 k samples/s"  # was 0.00 s, 0.00 M
