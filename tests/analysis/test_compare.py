@@ -423,6 +423,32 @@ def test_a_study_plans_each_scene_once(tmp_path, monkeypatch):
     assert counts == {str(CHECKERBOARD): 2}  # two scenes: one plan each
 
 
+def test_two_scenes_of_one_file_each_warm_their_cells_up(tmp_path, monkeypatch):
+    """The warm-up before a cell's timed renders is per scene, parameters
+    included: the second size of one file was taken as warm, and its first timed
+    round traced its kernels (148 ms against 1.3 ms for the rounds after)."""
+    import mcrt.core.render as passes
+    from mcrt.analysis.study.config import WARMUP_SEED
+
+    second = f'[[scenes]]\nname = "small"\npath = "{CHECKERBOARD}"\n' \
+             'params = { width = 32, height = 24 }\n'
+    config = _config(tmp_path, study_toml(CHECKERBOARD) + second)
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    real, warm_ups = passes.render_film, []
+
+    def counted(scene, sampler=None, spp=None, seed=0, **kwargs):
+        result = real(scene, sampler, spp=spp, seed=seed, **kwargs)
+        if seed == WARMUP_SEED:
+            warm_ups.append((result.image.shape[:2], result.spp))
+        return result
+
+    monkeypatch.setattr(passes, "render_film", counted)
+    assert main(["-q", "compare", str(config), "-o", str(tmp_path / "out")]) == 0
+    # 2 scenes x 2 samplers x 2 sample counts, one warm-up each
+    assert sorted(warm_ups) == sorted([(shape, spp) for shape in ((48, 64), (24, 32))
+                                       for spp in (4, 16) for _ in range(2)])
+
+
 def test_a_black_scene_is_studied_to_the_end(tmp_path):
     """A scene without a light renders black, as does its reference: HDR-FLIP
     has no exposure range for such a reference and its library aborted the

@@ -67,8 +67,9 @@ class SeedRender:
     rgb: np.ndarray | None = None  # (H, W, 3) float32, linear sRGB
 
 
-#: (run, scene digest, sampler label, spp) of the cells this process warmed up.
-_warmed: set[tuple[str, str, str, int]] = set()
+#: (run, scene digest, scene parameters, sampler label, spp) of the cells this
+#: process warmed up (two scenes of one file differ by their parameters).
+_warmed: set[tuple[str, str, tuple[tuple[str, str], ...], str, int]] = set()
 
 
 def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
@@ -87,7 +88,7 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
     planned = planned_scene(scene, dict(task.params))
     cell_index, r = task.slot(index)
     spec, spp = task.cells[cell_index]
-    cell = (task.run, getattr(scene, "digest", ""), spec.label, spp)
+    cell = (task.run, getattr(scene, "digest", ""), task.params, spec.label, spp)
 
     def run(seed: int) -> FilmRender:
         with quiet_sampler_warnings():
