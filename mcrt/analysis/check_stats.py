@@ -4,10 +4,12 @@
   trials of each integrand on the film call, on call 4, and of the product
   f(call 1) f(call 4) (value I^2 only if the dimensions are independent, as a
   path integrand needs: Mitsuba's ``ldsampler`` gives every dimension of a pixel
-  the same points reordered, and fails). t of the mean on P - 1 degrees of
+  the same points reordered, and fails), and of the 1D call's mean (1/2) and
+  share below 1/3 (:data:`ONE_D_TERMS`: BSDF lobes and Russian roulette draw
+  1D samples). t of the mean on P - 1 degrees of
   freedom, Holm's step-down at family-wise ``ALPHA = 1e-3``. Power: a bias b is
   found with probability >= 0.999 once ``|b| >= (t_{1-ALPHA/2m} + t_{0.999}) se``
-  (~7 se, m = 9); the detail prints the largest over the tests, relative to the
+  (~7 se, m = 11); the detail prints the largest over the tests, relative to the
   value: 2.5% at P = 16384 (10% quick) for independent points, 2% (8%) for
   jittered; points in [0, 0.9) bias the disk by +23% (t > 10). Pixels sharing T
   unshifted table sets (pointset, randomize none/symmetry) share the table's
@@ -18,8 +20,8 @@
   cell centres, on purpose) has a film estimate with no sampling error and a
   bias by design. Its terms that involve the film call (f(call 1) and the
   product f(call 1) f(call 4)) are reported in the detail as information, not
-  tested; every term that does not is tested: f(call 4) and, in place of the
-  film product, f(call 3) f(call 4) (m = 6). The claim lets off the film alone:
+  tested; every term that does not is tested: f(call 4), the 1D terms and, in
+  place of the film product, f(call 3) f(call 4) (m = 8). The claim lets off the film alone:
   a sampler biased in the other dimensions still fails.
 * **mse_rate**: MSE against N (run_convergence, fresh seeds per N), slope by
   fit_slope (se scaled by sqrt(chi2/dof)): pass if ``slope <= -1 + 0.1 + 3 se``
@@ -93,13 +95,24 @@ def _terms(g: Integrand, film: np.ndarray, third: np.ndarray, last: np.ndarray,
     return terms, reported
 
 
+#: The 1D call's tests: (name, function of u, its integral over [0, 1)). The
+#: mean alone passes a sampler that returns 1/2 every time; the share below 1/3
+#: tests the distribution too.
+ONE_D_TERMS: tuple[tuple[str, Any, float], ...] = (
+    ("u call 2", lambda u: u, 0.5),
+    ("u < 1/3 call 2", lambda u: (u < 1.0 / 3.0).astype(np.float64), 1.0 / 3.0))
+
+
 def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     n = subject.count(budget.unbiased_spp)
     pixels = min(budget.unbiased_pixels, max(MIN_PIXELS, budget.unbiased_lanes // n))
     sampler = subject.seeded(n, pixels, seed)
     sets, n = _table_sets(sampler), sampler.sample_count()
-    first, _, third, last = (c.reshape(pixels, n, -1) for c in draw(sampler, UNBIASED_CALLS))
-    tests, film = {}, {}
+    first, second, third, last = (c.reshape(pixels, n, -1)
+                                  for c in draw(sampler, UNBIASED_CALLS))
+    u = second[..., 0].astype(np.float64)
+    tests = {name: _t_test(f(u).mean(axis=1), exact, sets) for name, f, exact in ONE_D_TERMS}
+    film: dict[str, tuple[float, float, float]] = {}
     for g in INTEGRANDS.values():
         tested, info = _terms(g, first, third, last, "quadrature" in subject.info.claims)
         tests.update({k: _t_test(f.mean(axis=1), v, sets) for k, (f, v) in tested.items()})

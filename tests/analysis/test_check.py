@@ -86,6 +86,35 @@ def test_biased_sampler_fails_unbiasedness(capsys, register):
     assert "FAIL: " in out and "unbiasedness" in out.splitlines()[-1]
 
 
+def _biased_1d_class() -> type:
+    base = importlib.import_module("mcrt.samplers.base").McrtSampler
+
+    class Biased1D(base):  # type: ignore[misc, valid-type]
+        """Uniform 2D samples, but u^2 for every 1D sample (mean 1/3, not 1/2)."""
+
+        plugin_name = "biased_1d_test"
+
+        def _sample_1d(self, key, sample, active=True):
+            u = unit_float(hash_extend(key, sample))
+            return u * u
+
+        def _sample_2d(self, key, sample, active=True):
+            return mi.Point2f(unit_float(hash_extend(key, sample)),
+                              unit_float(hash_extend(key, sample + 0x9E3779B9)))
+    return Biased1D
+
+
+def test_a_sampler_biased_in_its_1d_samples_fails_unbiasedness(capsys, register):
+    """BSDF lobes and Russian roulette draw 1D samples: the 2D integrands alone
+    passed this sampler (all 9 checks held)."""
+    register("biased_1d_test", sampler=_biased_1d_class())
+    code, out, _ = run_cli(capsys, "check", "biased_1d_test", "--quick", "-q")
+    assert code == 1 and _rows(out)["unbiasedness"] == "FAIL"
+    line = next(x for x in out.splitlines() if x.startswith("unbiasedness"))
+    assert re.search(r"u call 2: bias -3[2-4]\.", line)  # E[u^2] = 1/3: -33.3%
+    assert "pi:" not in line and "disk:" not in line  # the 2D calls stay unbiased
+
+
 def _nondeterministic_class() -> type:
     base = importlib.import_module("mcrt.samplers.base").McrtSampler  # the active variant's
 
@@ -143,7 +172,7 @@ def test_uniform_grid_reports_its_film_bias_without_failing():
     assert re.search(r"disk \+49\.\d\d%", result.detail)
     tested = {k for k, v in result.values.items() if v["tested"]}
     assert tested == {f"{g} {term}" for g in ("pi", "disk", "gaussian")
-                      for term in ("call 4", "call 3 x 4")}
+                      for term in ("call 4", "call 3 x 4")} | {"u call 2", "u < 1/3 call 2"}
     assert result.values["disk"]["relative_bias"] > 0.4 and result.values["disk"]["p"] is None
 
 
