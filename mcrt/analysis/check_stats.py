@@ -219,6 +219,9 @@ def check_spectrum(subject: Subject, budget: Budget, seed: int = 0) -> CheckResu
     n, kmax = pts.shape[1], patterns.default_kmax(pts.shape[1])
     spectra = [patterns.power_spectrum(p, kmax) for p in pts]
     low = np.array([patterns.low_frequency_power(patterns.radial_spectrum(s, n)) for s in spectra])
+    if np.isnan(low).all():  # the first ring's f = 1 / sqrt(N) is 0.5 or more
+        raise Unsupported(f"N = {n} has no frequency 0 < f < 0.5 (the lowest is 1 / sqrt(N)): "
+                          f"check at --spp 5 or more for a spectrum")
     radial = patterns.radial_spectrum(np.mean(spectra, axis=0), n, len(pts))
     return _relative("spectrum", low, 1.0, f"power at 0 < f < 0.5, N = {n}:", {"radial": radial})
 

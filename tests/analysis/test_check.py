@@ -276,3 +276,14 @@ def test_ldsampler_fails_on_products_across_dimensions():
     t = {name: v["t"] for name, v in result.values.items()}
     assert t["disk x disk"] > 6 and t["gaussian x gaussian"] > 6
     assert all(abs(value) < 3 for name, value in t.items() if " x " not in name)
+
+
+@pytest.mark.parametrize("name, spp", [("jittered", 4), ("independent", 4), ("sobol", 2)])
+def test_a_count_without_low_frequencies_skips_the_spectrum(capsys, name, spp):
+    """At N <= 4 the lowest frequency 1 / sqrt(N) is 0.5 or more: the band
+    0 < f < 0.5 is empty, so the spectrum is skipped with the reason (it was a
+    NaN and a FAIL, for Mitsuba's own independent sampler too)."""
+    code, out, _ = run_cli(capsys, "check", name, "--spp", str(spp), "--quick", "-q")
+    assert code == 0, out
+    line = next(x for x in out.splitlines() if x.startswith("spectrum"))
+    assert "skip" in line and "has no frequency 0 < f < 0.5" in line
