@@ -14,7 +14,6 @@
 from __future__ import annotations
 
 import html
-import json
 import math
 from dataclasses import asdict
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_path
+from ..core.jsonfile import write_json
 from ..samplers import registry
 from .check import CheckResult, budget_for
 
@@ -173,8 +173,7 @@ def write_report(out: Path, name: str, params: dict[str, Any], seed: int, quick:
     the names of the files written."""
     figures = _figures(out, name, results)
     data = summary(name, params, seed, quick, results, spp)
-    with atomic_path(out / "results.json") as tmp:
-        Path(tmp).write_text(json.dumps(data, indent=2) + "\n")
+    write_json(out / "results.json", data)
     with atomic_path(out / "report.html") as tmp:
         Path(tmp).write_text(render_html(data, figures), encoding="utf-8")
     return [*figures, "results.json", "report.html"]

@@ -46,15 +46,13 @@ from __future__ import annotations
 import base64
 import csv
 import html
-import json
 import math
 import os
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..core.atomic import atomic_path, ensure_writable_dir
+from ..core.jsonfile import json_safe, write_json
 from .plots import save_figure
 from .report_tables import (
     cell_header,
@@ -90,27 +88,9 @@ TIME_NOTE = (
 # --------------------------------------------------------------------------- data files
 
 
-def _clean(value: Any) -> Any:
-    """JSON-safe copy: NaN/Inf -> None, numpy scalars -> Python, tuples -> lists."""
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        value = float(value)
-        return value if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
 def results_json(result: StudyResult) -> dict[str, Any]:
     """Everything a study measured, as JSON-ready data."""
-    return _clean({
+    return json_safe({
         "partial": result.partial,
         "progress": result.progress(),
         "study": result.config.as_dict(),
@@ -171,9 +151,7 @@ def write_results_csv(result: StudyResult, path: str | os.PathLike[str]) -> None
 
 
 def write_results_json(result: StudyResult, path: str | os.PathLike[str]) -> None:
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
-        json.dump(results_json(result), f, indent=1, allow_nan=False)
-        f.write("\n")
+    write_json(path, results_json(result), indent=1)
 
 
 # --------------------------------------------------------------------------- HTML

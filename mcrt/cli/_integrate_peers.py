@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from ..analysis import peers
 from ..core.atomic import atomic_path
+from ..core.jsonfile import write_json
 from ..core.sampling import mitsuba_message, quiet_sampler_warnings
 from ..errors import McrtError
 from ..samplers.points import point_sets
@@ -150,8 +150,7 @@ def run(args: argparse.Namespace, samplers: list[str], out: Path) -> int:
         writer = csv.DictWriter(f, fieldnames=fields or ["suite"])
         writer.writeheader()
         writer.writerows(rows)
-    with atomic_path(stem.with_suffix(".json")) as tmp:
-        Path(tmp).write_text(json.dumps({"suite": args.integrand, "seed": args.seed,
-                                         "rows": rows}, indent=2) + "\n")
+    write_json(stem.with_suffix(".json"), {"suite": args.integrand, "seed": args.seed,
+                                           "rows": rows})
     print(f"wrote {stem.name}.csv and .json to {out}")
     return 0

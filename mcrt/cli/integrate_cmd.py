@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 from pathlib import Path
 
 from ..analysis.integrate import (
@@ -15,6 +14,7 @@ from ..analysis.integrate import (
     time_samplers,
 )
 from ..core.atomic import atomic_path
+from ..core.jsonfile import write_json
 from ..core.progress import Progress
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
@@ -188,8 +188,7 @@ def _write_outputs(out: Path, args, integrand, results) -> None:
                         "skipped": [{"n": n, "reason": r} for n, r in conv.skipped]}
     summary = {"integrand": integrand.name, "exact": integrand.exact, "seed": args.seed,
                "budget": args.budget, "max_trials": args.trials, "slopes": slopes}
-    with atomic_path(stem.with_suffix(".json")) as tmp:
-        Path(tmp).write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(stem.with_suffix(".json"), summary)
 
     fig = plots.new_figure(6.0, 4.5)
     series = [(f"{name} ({conv.fit().slope:+.2f})", np.array([p.n for p in conv.points]),

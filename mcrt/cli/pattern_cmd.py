@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import re
@@ -13,6 +12,7 @@ import numpy as np
 
 from ..analysis import patterns
 from ..core.atomic import atomic_path
+from ..core.jsonfile import write_json
 from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..errors import McrtError
 from ..samplers.base import is_mcrt_sampler
@@ -205,8 +205,7 @@ def _write_outputs(out: Path, name: str, points: np.ndarray, report: patterns.Pa
                                        strict=True)]
     with atomic_path(out / "radial.csv") as tmp:
         Path(tmp).write_text("\n".join(lines) + "\n")
-    with atomic_path(out / "summary.json") as tmp:
-        Path(tmp).write_text(json.dumps(summary, indent=2, allow_nan=True) + "\n")
+    write_json(out / "summary.json", summary)
 
 
 def _print_summary(s: dict, out: Path) -> None:

@@ -198,7 +198,7 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
             # One ray for every sample (a radiance meter's): no surfaces to tell
             # apart, every lane shaded by the nested integrator's own samples.
             layout = ms.wavefront_layout(scene, sampler.wavefront_size())
-            shaded_per_pixel: Any = dr.full(mi.UInt32, layout.group, layout.pixels)
+            shaded_per_pixel = dr.full(mi.UInt32, layout.group, layout.pixels)
         else:
             layout = ms.wavefront_layout(scene, lanes)
             shaded_per_pixel = dr.ones(mi.UInt32, layout.pixels) if layout.group == 1 else None

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...core.colour import LUMINANCE_WEIGHTS
+from ...core.jsonfile import json_safe
 
 if TYPE_CHECKING:
     from ..study import StudyResult
@@ -133,16 +134,6 @@ def _json_script(data: dict[str, Any]) -> str:
     return text.replace("</", "<\\/")
 
 
-def _clean_floats(data: Any) -> Any:
-    if isinstance(data, dict):
-        return {k: _clean_floats(v) for k, v in data.items()}
-    if isinstance(data, list):
-        return [_clean_floats(v) for v in data]
-    if isinstance(data, float) and not np.isfinite(data):
-        return None
-    return data
-
-
 HELP = ("Keys (hover a viewer first): 1-9 sampler, &uarr;/&darr; previous/next sampler, "
         "&larr;/&rarr; fewer/more spp, r reference, m mean over seeds / first seed, "
         "i image, s signed, a absolute, e relative error, f FLIP, v variance, "
@@ -157,7 +148,7 @@ def viewer_sections(result: StudyResult, data: dict[str, dict[str, Any]]) -> lis
     for index, scene in enumerate(result.scenes):
         if scene not in data:
             continue
-        scene_data = _clean_floats(data[scene])
+        scene_data = json_safe(data[scene])
         parts.append(
             f"<h3 id='viewer-{index}'>{html.escape(scene)}</h3>"
             f"<div class='mcrt-viewer' tabindex='0' data-scene='{html.escape(scene)}' "
