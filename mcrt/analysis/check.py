@@ -33,7 +33,12 @@ from typing import Any
 import mitsuba as mi
 import numpy as np
 
-from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
+from ..core.sampling import (
+    check_sampler_name,
+    make_sampler,
+    quiet_sampler_warnings,
+    raise_if_interrupted,
+)
 from ..errors import SamplerError
 from ..samplers import registry
 from ..samplers.points import point_sets
@@ -116,7 +121,8 @@ class Subject:
         try:  # without a sample_count, which the sampler may not serve
             with quiet_sampler_warnings():
                 probe = mi.load_dict({"type": self.name, **self.user})
-        except Exception:
+        except Exception as error:
+            raise_if_interrupted(error)
             return None  # make() reports it at the count a check asks for
         served = getattr(probe, "sample_counts", None)
         counts = served() if callable(served) else None
@@ -274,6 +280,7 @@ def run_checks(name: str, params: dict[str, Any] | None = None, quick: bool = Fa
         except Unsupported as error:
             result = CheckResult(row, True, "n/a", f"skipped: {error}", skipped=True)
         except Exception as error:  # the sampler failed while drawing
+            raise_if_interrupted(error)
             result = CheckResult(row, False, "error", f"{type(error).__name__}: {error}")
         results.append(result)
         if progress is not None:

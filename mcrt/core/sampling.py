@@ -25,9 +25,21 @@ from ..errors import SamplerError
 from ..samplers.registry import names
 
 
+def raise_if_interrupted(error: BaseException) -> None:
+    """Raise :class:`KeyboardInterrupt` if ``error`` is Mitsuba's wrapping of a
+    Ctrl-C inside a Python plugin (a point generator, say): Mitsuba turns it into
+    a ``RuntimeError`` whose traceback ends in ``KeyboardInterrupt``, which a
+    handler of plugin errors would report, or swallow, as the plugin's fault."""
+    lines = str(error).strip().splitlines()
+    if lines and lines[-1].strip().startswith("KeyboardInterrupt"):
+        raise KeyboardInterrupt from error
+
+
 def mitsuba_message(error: BaseException) -> str:
     """One line from a Mitsuba exception: no ``[file.cpp:123]`` prefix, and for
-    errors raised inside Python plugins, the final ``Type: message`` line."""
+    errors raised inside Python plugins, the final ``Type: message`` line. A
+    wrapped Ctrl-C is raised again instead (:func:`raise_if_interrupted`)."""
+    raise_if_interrupted(error)
     lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
     if not lines:
         return type(error).__name__

@@ -29,7 +29,7 @@ from mcrt.analysis.check_stats import check_unbiasedness
 from mcrt.samplers import registry
 from mcrt.samplers.kit import hash_extend, unit_float
 from mcrt.samplers.point_sources import jittered_sets
-from tests.conftest import run_cli
+from tests.conftest import ROOT, run_cli
 
 
 @pytest.fixture
@@ -287,3 +287,25 @@ def test_a_count_without_low_frequencies_skips_the_spectrum(capsys, name, spp):
     assert code == 0, out
     line = next(x for x in out.splitlines() if x.startswith("spectrum"))
     assert "skip" in line and "has no frequency 0 < f < 0.5" in line
+
+
+def _interrupted_generator(count, n, rng):
+    raise KeyboardInterrupt  # what Ctrl-C raises in a slow point generator
+
+
+def test_ctrl_c_inside_a_point_generator_interrupts_check_and_render(capsys, register,
+                                                                     tmp_path):
+    """Mitsuba hands a Ctrl-C inside a Python plugin on as a RuntimeError: `mcrt
+    check` took it for the sampler's failure and ran to the end (exit 0), `mcrt
+    render` said 'cannot create sampler' (exit 2). Both stop: exit 130."""
+    from mcrt.core.sampling import make_sampler
+
+    register("interrupted_test", points=_interrupted_generator)
+    with pytest.raises(KeyboardInterrupt):
+        make_sampler("interrupted_test", 16)
+    code, _, err = run_cli(capsys, "check", "interrupted_test", "--quick", "-q")
+    assert code == 130 and "interrupted" in err
+    code, _, err = run_cli(capsys, "render", str(ROOT / "scenes" / "cornell_box.xml"), "-D",
+                           "res=16", "--sampler", "interrupted_test", "--spp", "4", "-o",
+                           str(tmp_path / "unused"))
+    assert code == 130 and "interrupted" in err and "cannot create sampler" not in err
