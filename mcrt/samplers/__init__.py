@@ -88,6 +88,11 @@ def register_sampler(name: str, sampler: type | None = None, *, points=None,
     """
     from .user_points import points_class
 
+    if not isinstance(name, str) or not name:
+        raise SamplerError(f"register_sampler: the name must be a non-empty string, got {name!r}")
+    if isinstance(claims, str):
+        raise SamplerError(f"register_sampler: claims is a collection of names, e.g. "
+                           f"claims=({claims!r},), not the string {claims!r}")
     given = [x is not None for x in (sampler, points, file)]
     if sum(given) != 1:
         raise SamplerError("register_sampler: give exactly one of sampler=, points= "

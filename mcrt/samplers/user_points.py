@@ -25,9 +25,11 @@ def points_class(name: str, *, points: Callable | None = None, file: str | Path 
         raise SamplerError(f"{name}: randomize must be one of "
                            f"{', '.join(pointset.RANDOMIZATIONS)}, got {randomize!r}")
     source: object
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 1 << 32:
+        raise SamplerError(f"{name}: seed must be an integer in [0, 2^32), got {seed!r}")
     if points is not None:
-        source = point_sources.GeneratorSource(points, sets or point_sources.DEFAULT_SETS,
-                                               seed, name)
+        source = point_sources.GeneratorSource(
+            points, point_sources.DEFAULT_SETS if sets is None else sets, seed, name)
         what = f"points from {getattr(points, '__name__', 'a generator')}()"
     else:
         if sets is not None:

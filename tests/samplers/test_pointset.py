@@ -198,6 +198,22 @@ def test_register_sampler_refuses_taken_names_and_bad_calls():
         mcrt.register_sampler("My Sampler", points=lambda c, n, rng: rng.random((c, n, 2)))
 
 
+@pytest.mark.parametrize("how, message", [
+    ({"name": ""}, "the name must be a non-empty string"),
+    ({"seed": -1}, r"seed must be an integer in \[0, 2\^32\), got -1"),
+    ({"seed": 1 << 32}, "seed must be an integer"),
+    ({"sets": 0}, r"sets must be an integer in \[1, 65536\], got 0"),  # was the default, silently
+    ({"claims": "stratified"}, r"claims=\('stratified',\), not the string"),
+])
+def test_register_sampler_names_the_bad_argument_at_once(how, message):
+    """Refused when registered, naming the argument: a negative seed failed only
+    at the first render ('expected non-negative integer'), sets=0 meant 256 and
+    claims='stratified' listed its letters as unknown claims."""
+    how = {"name": "arg_test", "points": lambda c, n, rng: rng.random((c, n, 2))} | how
+    with pytest.raises(SamplerError, match=message):
+        mcrt.register_sampler(**how)
+
+
 def test_a_generator_sampler_survives_a_variant_switch():
     code = (
         "import mitsuba as mi, mcrt\n"
