@@ -160,9 +160,13 @@ class FileSource:
     def counts(self) -> tuple[int, ...] | None:
         return tuple(sorted(self._tables))
 
+    def sets(self) -> dict[int, int]:
+        """How many sets the file holds of each size."""
+        return {n: int(table.shape[0]) for n, table in self._tables.items()}
+
     def table(self, n: int) -> np.ndarray:
         if n not in self._tables:
-            raise count_mismatch(self.describe(), n, self.counts())
+            raise count_mismatch(self.describe(), n, self.sets())
         return self._tables[n]
 
 
@@ -174,11 +178,18 @@ def file_digest(path: str | Path) -> str:
         return ""
 
 
-def count_mismatch(where: str, n: int, counts: tuple[int, ...] | None) -> SamplerError:
-    """The error for a sample count the point sets do not have."""
-    have = ", ".join(map(str, counts or ()))
-    return SamplerError(f"{where}: holds sets of {have} points, not {n}: render with "
-                        f"--spp {counts[0] if counts else n} (the count must match a set size)")
+def best_count(sets: dict[int, int]) -> int:
+    """The set size with the most sets (the smallest of those): the one to use
+    when the caller named none."""
+    return min(sets, key=lambda n: (-sets[n], n))
+
+
+def count_mismatch(where: str, n: int, sets: dict[int, int]) -> SamplerError:
+    """The error for a sample count the point sets (``sets``: how many of each
+    size) do not have; it suggests :func:`best_count`."""
+    have = ", ".join(f"{s} set{'s' if s != 1 else ''} of {c}" for c, s in sorted(sets.items()))
+    return SamplerError(f"{where}: holds {have} points, not {n}: render with --spp "
+                        f"{best_count(sets)} (the count must match a set size)")
 
 
 def _bound_values(fn: Callable) -> list[Any]:

@@ -209,12 +209,13 @@ class PointSetSampler(McrtSampler):
         counts = self.sample_counts()
         defaulted, self._count_defaulted = self._count_defaulted, False
         if counts is not None and spp not in counts:
-            if defaulted:  # constructed without a sample_count
-                return counts[0]
-            from .point_sources import count_mismatch
+            from .point_sources import best_count, count_mismatch  # (a file: it has counts)
 
+            sets = self._source.sets()  # type: ignore[attr-defined]
+            if defaulted:  # constructed without a sample_count
+                return best_count(sets)
             raise count_mismatch(f"{self.plugin_name} ({self._source.describe()})",  # type: ignore[attr-defined]
-                                 spp, counts)
+                                 spp, sets)
         return spp
 
     def _sample_count_changed(self, spp: int) -> None:

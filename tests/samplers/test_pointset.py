@@ -93,8 +93,22 @@ def test_other_file_errors(tmp_path, jittered_file):
     assert "line 2 is not a point" in load_error(filename=str(tmp_path / "p.dat"))
     assert "give the point sets' file" in load_error()
     assert "'randomize' must be one of" in load_error(filename=jittered_file, randomize="twist")
-    with pytest.raises(SamplerError, match="holds sets of 16 points, not 9: render with --spp 16"):
+    with pytest.raises(SamplerError, match=r"holds \d+ sets of 16 points, not 9: render with "
+                                           r"--spp 16"):
         make_sampler("pointset", 9, filename=jittered_file)
+
+
+def test_a_file_of_uneven_set_sizes_suggests_the_size_with_the_most_sets(tmp_path):
+    """UTK text of 1 set of 15 points and 19 of 16: the advice and the default
+    count are 16 (15 was suggested, and then refused: one set is too few)."""
+    rng = np.random.default_rng(3)
+    sets = [rng.random((15, 2))] + [rng.random((16, 2)) for _ in range(19)]
+    path = tmp_path / "uneven.dat"
+    path.write_text("#\n".join("".join(f"{x} {y}\n" for x, y in points) for points in sets))
+    with pytest.raises(SamplerError, match=r"holds 1 set of 15, 19 sets of 16 points, not 9: "
+                                           r"render with --spp 16"):
+        make_sampler("pointset", 9, filename=str(path))
+    assert mi.load_dict({"type": "pointset", "filename": str(path)}).sample_count() == 16
 
 
 # -- what each randomisation keeps ----------------------------------------------
