@@ -139,6 +139,10 @@ def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> 
         raise
     try:
         files = write_report(result, out)
+    except KeyboardInterrupt:  # every cell is measured and saved: only the report is missing
+        print(f"mcrt: interrupted while writing the report; the {len(state.cells)} measured "
+              f"cells are saved: to write it, run: {resume_command(args, out)}", file=sys.stderr)
+        return 130
     except (McrtError, OSError) as error:
         kept = (f"; the {len(state.cells)} measured cells are kept in {state.directory}: "
                 f"{remedy(error)} and run the same command again to write the report without "

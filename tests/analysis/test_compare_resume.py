@@ -29,7 +29,7 @@ from mcrt.analysis.study import (
 from mcrt.cli import main
 from mcrt.core.sampling import sampler_name
 from mcrt.errors import McrtError
-from tests.conftest import CHECKERBOARD, study_toml
+from tests.conftest import CHECKERBOARD, study_toml, untimed
 
 CONFIG = study_toml(CHECKERBOARD, name="resume")
 
@@ -341,3 +341,30 @@ def test_retime_times_the_saved_cells_again_and_keeps_their_errors(study, tmp_pa
     code, _, err = _run(capsys, "compare", str(config), "-o", str(out), "--retime",
                         "--restart")
     assert code == 2 and "use one of the two" in err
+
+
+def test_interrupt_while_the_report_is_written_says_how_to_write_it(study, tmp_path,
+                                                                    monkeypatch, capsys):
+    """Ctrl-C after the last cell, while the report is written: the cells are
+    saved, and the message says the same command writes the report (it said
+    only 'mcrt: interrupted'); that command then measures nothing again."""
+    import mcrt.cli.compare_cmd as compare_cmd
+
+    config, cache, baseline = study
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(cache))
+    out = tmp_path / "report"
+    real = compare_cmd.write_report
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(compare_cmd, "write_report", interrupted)
+    code, _, err = _run(capsys, "-q", "compare", str(config), "-o", str(out))
+    last = err.strip().splitlines()[-1]
+    assert code == 130 and last.startswith("mcrt: interrupted while writing the report; the 4 "
+                                           "measured cells are saved: to write it, run: mcrt")
+    assert f"compare {config} -o {out}" in last
+    monkeypatch.setattr(compare_cmd, "write_report", real)
+    code, _, err = _run(capsys, "compare", str(config), "-o", str(out))
+    assert code == 0 and "resuming: 4 of 4 cells" in err
+    assert [untimed(c) for c in _json(out)["cells"]] == [untimed(c) for c in baseline["cells"]]
