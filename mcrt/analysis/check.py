@@ -205,7 +205,8 @@ def check_range(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
            if (out := ~(np.isfinite(v) & (v >= 0.0) & (v < 1.0))).any()]
     low, high = (float(f([f(v) for v in values])) for f in (np.nanmin, np.nanmax))
     detail = "; ".join(bad) or f"{sum(v.size for v in values)} values: finite, in [0, 1)"
-    return CheckResult("range", not bad, f"[{low:.2g}, 1 - {1 - high:.2g}]", detail,
+    top = f"1 - {1 - high:.2g}" if high < 1 else f"{high:.3g}"  # (a value >= 1 fails)
+    return CheckResult("range", not bad, f"[{low:.2g}, {top}]", detail,
                        values={"min": low, "max": high})
 
 

@@ -110,6 +110,11 @@ def make_sampler(name: str, spp: int, base_seed: int = 0, **params: Any) -> mi.S
     if "seed" in params:
         raise SamplerError(f"{name}: the seed is a setting of the render (--seed), not of the "
                            f"sampler")
+    if "sample_count" in params or "type" in params:
+        key = "sample_count" if "sample_count" in params else "type"
+        raise SamplerError(f"{name}: {key} is a setting of the render ("
+                           f"{'--spp' if key == 'sample_count' else '--sampler'}), not a "
+                           f"sampler parameter")
     own = {"seed": int(base_seed)} if base_seed else {}
     try:
         return mi.load_dict({"type": name, "sample_count": int(spp), **own, **params})

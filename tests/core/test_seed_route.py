@@ -59,6 +59,9 @@ def test_sampler_parameters_are_recorded_and_reproduce(capsys, tmp_path):
 def test_a_seed_is_never_a_sampler_property():
     with pytest.raises(Exception, match="seed is a setting of the render"):
         make_sampler("jittered", 16, seed=3)
+    # nor the count (-P sample_count=64 --spp 4 was accepted, the -P value silently lost)
+    with pytest.raises(Exception, match=r"sample_count is a setting of the render \(--spp\)"):
+        make_sampler("jittered", 4, sample_count=64)
     for name in ("jittered", "independent", "stratified", "multijitter"):
         assert "seed" not in sampler_params(make_sampler(name, 16))
 
