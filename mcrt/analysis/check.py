@@ -174,9 +174,21 @@ class Subject:
 
 
 def draw(sampler: mi.Sampler, calls: tuple[str, ...] = CALLS) -> list[np.ndarray]:
-    """Values of ``calls`` ("1d"/"2d") as float64 ``(lanes, 1 or 2)`` arrays."""
-    return [np.array(sampler.next_2d(), dtype=np.float64).T if call == "2d"
-            else np.array(sampler.next_1d(), dtype=np.float64).reshape(-1, 1) for call in calls]
+    """Values of ``calls`` ("1d"/"2d") as float64 ``(lanes, 1 or 2)`` arrays; a
+    call that does not return one value per lane is the sampler's error, said so."""
+    lanes = sampler.wavefront_size()
+    out = []
+    for i, call in enumerate(calls):
+        values = np.array(sampler.next_2d() if call == "2d" else sampler.next_1d(),
+                          dtype=np.float64)
+        values = values.T if call == "2d" else values.reshape(-1, 1)
+        if values.shape != (lanes, 2 if call == "2d" else 1):
+            count = f"{values.size} value{'s' if values.size != 1 else ''}"
+            raise SamplerError(f"call {i + 1} (next_{call}) returned {count} for {lanes} "
+                               f"lanes: a sampler returns one "
+                               f"{'point' if call == '2d' else 'value'} per lane")
+        out.append(values)
+    return out
 
 
 # --------------------------------------------------------------------------- contract

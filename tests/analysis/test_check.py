@@ -309,3 +309,31 @@ def test_ctrl_c_inside_a_point_generator_interrupts_check_and_render(capsys, reg
                            "res=16", "--sampler", "interrupted_test", "--spp", "4", "-o",
                            str(tmp_path / "unused"))
     assert code == 130 and "interrupted" in err and "cannot create sampler" not in err
+
+
+def _scalar_1d_class() -> type:
+    base = importlib.import_module("mcrt.samplers.base").McrtSampler
+
+    class Scalar1D(base):  # type: ignore[misc, valid-type]
+        """One value for a whole wavefront of 1D samples."""
+
+        plugin_name = "scalar_1d_test"
+
+        def _sample_1d(self, key, sample, active=True):
+            return mi.Float(0.25)
+
+        def _sample_2d(self, key, sample, active=True):
+            return mi.Point2f(unit_float(hash_extend(key, sample)),
+                              unit_float(hash_extend(key, sample + 0x9E3779B9)))
+    return Scalar1D
+
+
+def test_a_sampler_returning_one_value_for_all_lanes_is_told_so(capsys, register):
+    """The rows that draw it say what is wrong (they printed numpy's reshape and
+    axis errors)."""
+    register("scalar_1d_test", sampler=_scalar_1d_class())
+    code, out, _ = run_cli(capsys, "check", "scalar_1d_test", "--quick", "-q")
+    assert code == 1
+    line = next(x for x in out.splitlines() if x.startswith("unbiasedness"))
+    assert "call 2 (next_1d) returned 1 value for 16384 lanes" in line
+    assert "reshape" not in out and "AxisError" not in out
