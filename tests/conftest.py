@@ -83,6 +83,23 @@ TINY_SCENE = """<scene version="3.0.0">
 """
 
 
+def scene_xml(body: str, integrator: str = '<integrator type="path"/>', size: int = 16,
+              origin: str = "0, 0, 4", target: str = "0, 0, 0", fov: float = 40) -> str:
+    """A small scene: ``integrator``, a perspective camera at ``origin`` looking at
+    ``target`` onto a ``size`` x ``size`` box-filtered film, and ``body`` (shapes,
+    emitters)."""
+    return f"""<scene version="3.0.0">
+    {integrator}
+    <sensor type="perspective"><float name="fov" value="{fov}"/>
+        <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm"><integer name="width" value="{size}"/>
+            <integer name="height" value="{size}"/><rfilter type="box"/></film>
+    </sensor>
+    {body}
+</scene>"""
+
+
 def study_toml(scene: str | Path, name: str | None = None,
                params: str | None = "{ width = 64, height = 48 }", seeds: int = 2,
                extra: str = "") -> str:

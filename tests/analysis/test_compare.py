@@ -37,7 +37,7 @@ from mcrt.analysis.study.fields import (
 from mcrt.cli import main
 from mcrt.core.stats import PixelStats
 from mcrt.samplers import ALL_SAMPLERS
-from tests.conftest import CHECKERBOARD, ROOT, study_toml
+from tests.conftest import CHECKERBOARD, ROOT, scene_xml, study_toml
 
 QUICK = ROOT / "configs" / "quick.toml"
 FULL = ROOT / "configs" / "full.toml"
@@ -458,16 +458,7 @@ def test_a_black_scene_is_studied_to_the_end(tmp_path):
     import sys
 
     scene = tmp_path / "unlit.xml"
-    scene.write_text("""<scene version="3.0.0">
-    <integrator type="path"/>
-    <sensor type="perspective"><float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/>
-        </transform>
-        <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/>
-            <rfilter type="box"/></film>
-    </sensor>
-    <shape type="sphere"><bsdf type="diffuse"/></shape>
-</scene>""")
+    scene.write_text(scene_xml('<shape type="sphere"><bsdf type="diffuse"/></shape>', size=32))
     config = _config(tmp_path, study_toml(scene, params=None))
     env = {**os.environ, "MCRT_CACHE_DIR": str(tmp_path / "cache")}
     run = subprocess.run([sys.executable, "-m", "mcrt", "-q", "compare", str(config),

@@ -17,7 +17,7 @@ from mcrt.io import read_exr
 from mcrt.render.motion import Motion, strobing_index, subframe_count, subframe_times
 from mcrt.render.plan import EFFECTS, parse_effect_overrides, plan_scene
 from mcrt.samplers import JitteredSampler
-from tests.conftest import CHECKERBOARD, ROOT, run_cli
+from tests.conftest import CHECKERBOARD, ROOT, run_cli, scene_xml
 
 EFFECT_SCENES = ROOT / "scenes" / "effects"
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -424,18 +424,11 @@ def one_shape_scene(tmp_path: Path, shape: str) -> Path:
     """A ``path`` scene (max_depth 8) of one reflecting ``shape`` (XML) and a point
     light at (0, 0.5, 0), seen from (0, 0, 0.5) towards -z."""
     path = tmp_path / "one_shape.xml"
-    path.write_text(f"""<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="8"/></integrator>
-    <sensor type="perspective"><float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 0, 0.5" target="0, 0, -1" up="0, 1, 0"/>
-        </transform>
-        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/>
-            <rfilter type="box"/></film>
-    </sensor>
-    {shape}
-    <emitter type="point"><point name="position" x="0" y="0.5" z="0"/>
-        <rgb name="intensity" value="5"/></emitter>
-</scene>""")
+    path.write_text(scene_xml(
+        shape + '<emitter type="point"><point name="position" x="0" y="0.5" z="0"/>'
+        '<rgb name="intensity" value="5"/></emitter>',
+        '<integrator type="path"><integer name="max_depth" value="8"/></integrator>',
+        origin="0, 0, 0.5", target="0, 0, -1", fov=60))
     return path
 
 
