@@ -24,6 +24,7 @@ import pytest
 
 import mcrt.analysis.report as report
 import mcrt.analysis.study as study
+import mcrt.core.jsonfile as jsonfile
 import mcrt.core.state_file as state_file
 from mcrt.analysis.study.summary import CellScores, ReferenceImage
 from mcrt.core.stats import PixelStats
@@ -137,10 +138,12 @@ def _check(directory: Path, before: dict[Path, bytes], raised, error: BaseExcept
                                         ("report", "report.html")])
 def test_report_data_files(good_report, monkeypatch, kind, only, error):
     """results.csv, results.json and report.html (each written by ``open`` in
-    mcrt.analysis.report) die half-way: the previous files stay as they were."""
+    mcrt.analysis.report or, the JSON, mcrt.core.jsonfile) die half-way: the
+    previous files stay as they were."""
     tmp, files, _ = good_report
     before = {p: p.read_bytes() for p in files.values()}
-    monkeypatch.setattr(report, "open", dying_open(error, only), raising=False)
+    for module in (report, jsonfile):
+        monkeypatch.setattr(module, "open", dying_open(error, only), raising=False)
     (tmp / kind).mkdir(exist_ok=True)
     result = synthetic_result(tmp / kind, done=2)  # different content: a partial study
     writer = {"csv": lambda: report.write_results_csv(result, files["csv"]),
