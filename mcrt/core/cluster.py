@@ -40,6 +40,7 @@ from distributed.client import ClosedClientError
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..errors import McrtError
+from .environ import env_number
 from .memory import reuse_freed_memory
 from .scene_files import SceneSource, describe
 
@@ -104,7 +105,7 @@ class WorkerSetup(WorkerPlugin):
             from ..plugins import install_worker_state
 
             install_worker_state(self.plugins)
-        threads = self.threads or int(os.environ.get("MCRT_WORKER_THREADS") or 0)
+        threads = self.threads or int(env_number("MCRT_WORKER_THREADS", 0, integer=True))
         if threads:
             dr.set_thread_count(threads)
         reuse_freed_memory()
@@ -190,8 +191,8 @@ class DaskExecutor:
                                quiet)
                 executor._workers = workers
                 return executor
+            timeout = env_number("MCRT_CLUSTER_TIMEOUT", CONNECT_TIMEOUT, positive=True)
             try:
-                timeout = float(os.environ.get("MCRT_CLUSTER_TIMEOUT") or CONNECT_TIMEOUT)
                 client = Client(address, timeout=timeout)
             except (OSError, TimeoutError, ValueError) as error:
                 raise McrtError(f"cannot reach the Dask scheduler at {address} "
@@ -348,12 +349,11 @@ class DaskExecutor:
         """Tasks finish (or workers are there) again after a time without workers."""
         if self._none_since is not None:
             self._none_since = None
-            log.info("Dask workers at %s again: the lost tasks run again",
-                     self.address or "local")
+            log.info("Dask workers at %s again: the lost tasks run again", self.address or "local")
 
     @staticmethod
     def _worker_wait() -> float:
-        return float(os.environ.get("MCRT_CLUSTER_WORKER_WAIT") or WORKER_WAIT)
+        return env_number("MCRT_CLUSTER_WORKER_WAIT", WORKER_WAIT)
 
     def _watch(self, pending: int) -> None:
         """Nothing finished for a while: the scheduler gone is a
