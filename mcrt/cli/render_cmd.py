@@ -184,6 +184,13 @@ def run(args: argparse.Namespace) -> int:
     if result.nonfinite_samples:
         print(f"non-finite samples: {result.nonfinite_samples} (NaN/Inf, left out of the image; "
               f"{int((result.nonfinite > 0).sum())} pixels affected)")
+    import numpy as np  # (loaded by the render already)
+
+    overflowed = int(np.count_nonzero(~np.isfinite(result.image).all(axis=-1)))
+    if overflowed:  # non-finite samples are left out: these are finite ones that overflowed
+        log.warning("%d pixels are infinite although their samples are finite: a pass's sum "
+                    "in Mitsuba's float32 film passed 3.4e38; scale the scene's radiance down",
+                    overflowed)
     _print_shading_counts(scene)
     print(f"wrote {exr_path} and {png_path}")
     return 0

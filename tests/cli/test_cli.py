@@ -13,7 +13,7 @@ import pytest
 import mcrt.cli.render_cmd as render_cmd
 from mcrt.cli import COMMANDS, build_parser, command_of
 from mcrt.io import read_exr
-from tests.conftest import run_cli
+from tests.conftest import run_cli, scene_xml
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 CORNELL = str(SCENES / "cornell_box.xml")
@@ -186,3 +186,19 @@ def test_a_tiny_render_s_speed_is_not_printed_as_zero():
 
     assert speed(1.25, 3.36e6) == "time 1.25 s  3.36 M samples/s"
     assert speed(0.00359, 4457.0) == "time 3.59 ms  4.46 k samples/s"  # was 0.00 s, 0.00 M
+
+
+def test_pixels_that_overflow_the_float32_film_are_reported(tmp_path, capsys):
+    """A light of radiance 1e37 seen directly: each sample is finite, but 64 of
+    them summed in Mitsuba's float32 film pass 3.4e38 (16 do not). The image's
+    Inf pixels were written without a word."""
+    scene = tmp_path / "hot.xml"
+    scene.write_text(scene_xml(
+        '<shape type="rectangle"><transform name="to_world"><scale value="0.6"/></transform>'
+        '<emitter type="area"><rgb name="radiance" value="1e37"/></emitter></shape>',
+        '<integrator type="direct"/>', size=32))
+    message = "pixels are infinite although their samples are finite"
+    code, _, err = run_cli(capsys, "render", str(scene), "--spp", "64", "-o", str(tmp_path / "a"))
+    assert code == 0 and message in err
+    code, _, err = run_cli(capsys, "render", str(scene), "--spp", "16", "-o", str(tmp_path / "b"))
+    assert code == 0 and message not in err
