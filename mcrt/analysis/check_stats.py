@@ -110,7 +110,7 @@ def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> Check
     sets, n = _table_sets(sampler), sampler.sample_count()
     first, second, third, last = (c.reshape(pixels, n, -1)
                                   for c in draw(sampler, UNBIASED_CALLS))
-    u = second[..., 0].astype(np.float64)
+    u = second[..., 0]
     tests = {name: _t_test(f(u).mean(axis=1), exact, sets) for name, f, exact in ONE_D_TERMS}
     film: dict[str, tuple[float, float, float]] = {}
     for g in INTEGRANDS.values():

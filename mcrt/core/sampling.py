@@ -24,6 +24,10 @@ import mitsuba as mi
 from ..errors import SamplerError
 from ..samplers.registry import names
 
+#: Plugin properties that are the render's settings, never sampler parameters,
+#: with the option that sets them.
+RENDER_SETTINGS = {"type": "--sampler", "sample_count": "--spp", "seed": "--seed"}
+
 
 def raise_if_interrupted(error: BaseException) -> None:
     """Raise :class:`KeyboardInterrupt` if ``error`` is Mitsuba's wrapping of a
@@ -107,14 +111,10 @@ def make_sampler(name: str, spp: int, base_seed: int = 0, **params: Any) -> mi.S
     ``base_seed`` is the plugin's own ``seed`` property, which a scene may author:
     :func:`base_seed` of a sampler object makes the same sampler again)."""
     check_sampler_name(name)
-    if "seed" in params:
-        raise SamplerError(f"{name}: the seed is a setting of the render (--seed), not of the "
-                           f"sampler")
-    if "sample_count" in params or "type" in params:
-        key = "sample_count" if "sample_count" in params else "type"
-        raise SamplerError(f"{name}: {key} is a setting of the render ("
-                           f"{'--spp' if key == 'sample_count' else '--sampler'}), not a "
-                           f"sampler parameter")
+    for key, option in RENDER_SETTINGS.items():
+        if key in params:
+            raise SamplerError(f"{name}: the {key} is a setting of the render ({option}), not a "
+                               f"sampler parameter")
     own = {"seed": int(base_seed)} if base_seed else {}
     try:
         return mi.load_dict({"type": name, "sample_count": int(spp), **own, **params})

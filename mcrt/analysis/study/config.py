@@ -48,8 +48,6 @@ _REQUIRED_KEYS = ("spp", "seeds", "samplers", "reference", "scenes")
 _REFERENCE_KEYS = {"spp", "sampler", "seed", "spp_per_pass"}
 _SCENE_KEYS = {"path", "name", "params"}
 _SAMPLER_KEYS = {"name", "label", "params"}
-#: Sampler parameters the study sets itself (from spp and seeds).
-_RESERVED_PARAMS = {"type", "sample_count", "seed"}
 #: Characters refused in scene names and sampler labels (they name files and CSV cells).
 _BAD_NAME_CHARS = ",/\\\n\r\t\0\"<>&:*?|"
 
@@ -337,7 +335,9 @@ def _parse_sampler(item: Any, where: str) -> SamplerSpec:
         raise ConfigError(f"{where}: missing 'name'")
     sampler = _sampler_name(item["name"], f"{where}.name", where)
     params = _params(item.get("params"), f"{where}.params", as_str=False)
-    reserved = sorted(set(params) & _RESERVED_PARAMS)
+    from ...core.sampling import RENDER_SETTINGS  # (mitsuba: imported when first needed)
+
+    reserved = sorted(set(params) & set(RENDER_SETTINGS))
     if reserved:
         raise ConfigError(f"{where}.params.{reserved[0]}: set by the study (spp and seeds "
                           f"are the study's own keys), not a sampler parameter")
