@@ -42,7 +42,7 @@ from ..samplers.base import is_mcrt_sampler
 from ..samplers.kit import hash_keys, hash_keys_int, split_sample
 from .memory import BYTES_PER_LANE, KERNEL_BYTES, lane_budget
 from .progress import Progress
-from .sampling import bind_film_width, sampler_name
+from .sampling import bind_film_width, raise_if_interrupted, sampler_name
 from .trace import CameraSamples, film_grid_size, pixel_of_index, trace
 
 log = logging.getLogger("mcrt.engine")
@@ -256,7 +256,9 @@ def deferred_interrupts() -> Iterator[None]:
 @contextlib.contextmanager
 def termination_as_interrupt() -> Iterator[None]:
     """Inside the block, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` like
-    Ctrl-C does, so a killed render keeps its finished passes."""
+    Ctrl-C does, so a killed render keeps its finished passes; one that arrived
+    while Dr.Jit traced Python code (which wraps it in a ``RuntimeError``) is
+    raised as the interrupt it was (:func:`~.sampling.raise_if_interrupted`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -267,6 +269,9 @@ def termination_as_interrupt() -> Iterator[None]:
     previous = {s: signal.signal(s, interrupt) for s in (signal.SIGTERM, signal.SIGHUP)}
     try:
         yield
+    except RuntimeError as error:
+        raise_if_interrupted(error)
+        raise
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -30,10 +30,20 @@ RENDER_SETTINGS = {"type": "--sampler", "sample_count": "--spp", "seed": "--seed
 
 
 def raise_if_interrupted(error: BaseException) -> None:
-    """Raise :class:`KeyboardInterrupt` if ``error`` is Mitsuba's wrapping of a
-    Ctrl-C inside a Python plugin (a point generator, say): Mitsuba turns it into
-    a ``RuntimeError`` whose traceback ends in ``KeyboardInterrupt``, which a
-    handler of plugin errors would report, or swallow, as the plugin's fault."""
+    """Raise :class:`KeyboardInterrupt` if ``error`` wraps one: a Ctrl-C (or a
+    termination signal, :func:`~mcrt.core.engine.termination_as_interrupt`)
+    that arrived in Python code Mitsuba or Dr.Jit called. Mitsuba turns it into
+    a ``RuntimeError`` whose traceback text ends in ``KeyboardInterrupt`` (a
+    plugin's construction), Dr.Jit into one caused by it (a ``dr.while_loop``
+    body it traces); a handler of plugin errors would report, or swallow, it as
+    the plugin's fault."""
+    seen: set[int] = set()
+    cause: BaseException | None = error
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            raise KeyboardInterrupt from error
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
     lines = str(error).strip().splitlines()
     if lines and lines[-1].strip().startswith("KeyboardInterrupt"):
         raise KeyboardInterrupt from error

@@ -245,3 +245,27 @@ def test_adaptive_render_resumes_to_the_uninterrupted_result():
     assert resumed.image.tobytes() == whole.image.tobytes()
     assert np.array_equal(resumed.spp, whole.spp)
     assert [r.samples for r in resumed.passes] == [r.samples for r in whole.passes]
+
+
+def test_an_interrupt_while_dr_jit_traces_is_an_interrupt():
+    """A signal that arrives while Dr.Jit traces a loop body reaches Python as a
+    RuntimeError ('dr.while_loop(): encountered an exception') caused by the
+    KeyboardInterrupt: a SIGTERM at that moment ended `mcrt render` in a
+    traceback, not with its finished passes kept (tests/core/test_kill_and_resume.py
+    hit it now and then). The block raises it as the interrupt it was; any other
+    RuntimeError passes through."""
+    import mitsuba as mi
+
+    from mcrt.core.engine import termination_as_interrupt
+
+    def interrupted(i):
+        raise KeyboardInterrupt
+
+    def broken(i):
+        raise ValueError("a bug")
+
+    with pytest.raises(KeyboardInterrupt), termination_as_interrupt():
+        dr.while_loop((mi.UInt32(0),), lambda i: i < 3, interrupted)
+    with pytest.raises(RuntimeError, match="encountered an exception"), \
+            termination_as_interrupt():
+        dr.while_loop((mi.UInt32(0),), lambda i: i < 3, broken)
