@@ -23,3 +23,14 @@ def cache_root() -> Path:
 def cache_dir(name: str) -> Path:
     """Subdirectory ``name`` of :func:`cache_root` (not created here)."""
     return cache_root() / name
+
+
+def cache_variable(path: str | os.PathLike) -> str | None:
+    """``"$MCRT_CACHE_DIR=ROOT"`` when ``path`` lies under that variable's root
+    (so a message about ``path`` can name where it came from), else None."""
+    root = os.environ.get("MCRT_CACHE_DIR")
+    if not root:
+        return None
+    if not Path(path).absolute().is_relative_to(Path(root).absolute()):
+        return None
+    return f"$MCRT_CACHE_DIR={root}"

@@ -339,12 +339,38 @@ def free_bytes(path: str | os.PathLike) -> int:
     return st.f_bavail * st.f_frsize
 
 
+def _unusable(path: Path) -> str | None:
+    """Why files cannot be created in the existing ``path`` (or under it), or None."""
+    if not path.is_dir():
+        return f"{path} is not a directory"
+    try:
+        st = os.statvfs(path) if hasattr(os, "statvfs") else None
+    except OSError:
+        st = None
+    if st is not None and st.f_flag & os.ST_RDONLY:
+        return f"{path} is on a read-only file system"
+    if st is not None and st.f_blocks == 0:  # /proc, /sys: no room for files at all
+        return f"{path} is on a file system that cannot hold files"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"{path} is not writable"
+    return None
+
+
 def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the outputs") -> None:
     """Refuse to start when ``directory`` (or its nearest existing parent) has
-    less than ``needed`` bytes free: one-line :class:`McrtError`."""
+    less than ``needed`` bytes free, or when it cannot be created or written
+    (naming ``$MCRT_CACHE_DIR`` when the path came from it): one-line
+    :class:`McrtError`."""
     path = Path(directory).absolute()
     while not path.exists() and path != path.parent:
         path = path.parent
+    problem = _unusable(path)
+    if problem is not None:
+        from ..cache import cache_variable  # the variable the path came from, if any
+
+        where = ", ".join(filter(None, (what, cache_variable(directory))))
+        verb = "write to" if path == Path(directory).absolute() else "create"
+        raise McrtError(f"cannot {verb} {directory} ({where}): {problem}")
     try:
         free = free_bytes(path)
     except OSError:
