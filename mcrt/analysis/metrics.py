@@ -209,19 +209,29 @@ def srgb_to_lab(rgb_linear: np.ndarray, white: float = 1.0) -> np.ndarray:
     return colour.XYZ_to_Lab(xyz, space.whitepoint)
 
 
-def delta_e_2000_map(image: np.ndarray, reference: np.ndarray, white: float = 1.0) -> np.ndarray:
-    """Per-pixel CIEDE2000 between the displayed images (H, W); see module doc."""
+def delta_e_2000_map(image: np.ndarray, reference: np.ndarray, white: float = 1.0,
+                     reference_lab: np.ndarray | None = None) -> np.ndarray:
+    """Per-pixel CIEDE2000 between the displayed images (H, W); see module doc.
+    ``reference_lab``: the reference's :func:`srgb_to_lab` at ``white``, when the
+    caller scores many images against one reference (the same values, computed once)."""
     import colour
 
     image, reference = _pair(image, reference)
+    if reference_lab is None:
+        reference_lab = srgb_to_lab(reference, white)
+    elif reference_lab.shape != reference.shape:
+        raise ValueError(f"reference_lab shape {reference_lab.shape} differs from the "
+                         f"reference's {reference.shape}")
     return np.asarray(colour.difference.delta_E_CIE2000(srgb_to_lab(image, white),
-                                                        srgb_to_lab(reference, white)),
+                                                        reference_lab),
                       dtype=np.float64)
 
 
-def delta_e_2000(image: np.ndarray, reference: np.ndarray, white: float = 1.0) -> float:
-    """Mean CIEDE2000 over pixels between the displayed images."""
-    return float(np.mean(delta_e_2000_map(image, reference, white)))
+def delta_e_2000(image: np.ndarray, reference: np.ndarray, white: float = 1.0,
+                 reference_lab: np.ndarray | None = None) -> float:
+    """Mean CIEDE2000 over pixels between the displayed images (``reference_lab``:
+    as in :func:`delta_e_2000_map`)."""
+    return float(np.mean(delta_e_2000_map(image, reference, white, reference_lab)))
 
 
 __all__ = ["BiasEstimate", "LUMINANCE_WEIGHTS", "REL_MSE_EPSILON", "bias", "delta_e_2000",

@@ -214,3 +214,30 @@ def test_scores_do_not_depend_on_the_blas_thread_count():
                               text=True, check=True)
         outs.append(done.stdout)
     assert outs[0] == outs[1] and "ratio" in outs[0]
+
+
+@pytest.mark.parametrize("correlation", [None, np.array([1.0, 0.25])])
+def test_null_draws_are_the_sequential_stream_in_order(correlation):
+    """The null batches run on two threads; the draws must still be the ones a
+    single thread takes from the seed's stream, batch after batch, in order:
+    written out here sequentially (8 sign images per batch, 2 * bit - 1), the
+    null means and sds agree to the last bit, and on every call."""
+    from mcrt.analysis import aliasing
+
+    rng = np.random.default_rng(11)
+    e = rng.normal(size=(40, 48)) * np.linspace(0.2, 1.0, 48)[None, :]
+    draws, seed = 28, 9  # 3 full batches and one of 4
+    layout = aliasing._layout(e.shape, aliasing.DEFAULT_CUTOFF, aliasing.DEFAULT_CELLS)
+    draw = aliasing._null_draws(e, layout.window * e, layout.window, correlation)
+    stream = np.random.default_rng(seed)
+    ratios, peaks = [], []
+    for k in (8, 8, 8, 4):
+        signs = stream.integers(0, 2, size=(k, *e.shape)) * 2.0 - 1.0
+        r, p = aliasing._statistics(aliasing._half_power(draw(signs)), layout)
+        ratios.append(r)
+        peaks.append(p)
+    ratio, peak = np.concatenate(ratios), np.concatenate(peaks)
+    for _ in range(3):
+        s = aliasing_score(e, null_draws=draws, seed=seed, correlation=correlation)
+        assert (s.ratio_null_mean, s.ratio_null_sd) == (ratio.mean(), ratio.std(ddof=1))
+        assert (s.peak_null_mean, s.peak_null_sd) == (peak.mean(), peak.std(ddof=1))

@@ -184,3 +184,19 @@ def test_efficiency_and_loglog_fit_by_hand():
     assert fit.slope == pytest.approx(-0.5) and fit.slope_se == pytest.approx(math.sqrt(1 / 12))
     with pytest.raises(ValueError):
         fit_loglog([4, 4], [1, 2])
+
+
+def test_delta_e_2000_against_a_precomputed_reference_lab():
+    """A study scores every render against one reference: its CIELAB, computed
+    once and passed in, gives the same bits as computing it each time; a Lab of
+    another shape is refused."""
+    from mcrt.analysis.metrics import srgb_to_lab
+
+    rng = np.random.default_rng(4)
+    image, reference = rng.random((6, 5, 3)) * 1.5, rng.random((6, 5, 3))
+    lab = srgb_to_lab(reference, 2.0)
+    assert np.array_equal(delta_e_2000_map(image, reference, 2.0, reference_lab=lab),
+                          delta_e_2000_map(image, reference, 2.0))
+    assert delta_e_2000(image, reference, 2.0, lab) == delta_e_2000(image, reference, 2.0)
+    with pytest.raises(ValueError, match="reference_lab shape"):
+        delta_e_2000(image, reference, reference_lab=lab[:3])

@@ -16,7 +16,7 @@ import numpy as np
 from ...core.timing import Sample, timed
 from ...errors import McrtError
 from ..aliasing import AliasingScore, aliasing_score, measurable
-from ..metrics import delta_e_2000, error_map, mse, rel_mse
+from ..metrics import delta_e_2000, error_map, mse, rel_mse, srgb_to_lab
 from .config import WARMUP_SEED, SamplerSpec
 
 if TYPE_CHECKING:
@@ -112,6 +112,22 @@ def render_seed(task: SeedTask, index: int, scene: SceneSource | SceneBundle,
     return SeedRender(cell_index, r, sample, values, rgb)
 
 
+#: (reference, its CIELAB) of the last references this process scored against: a
+#: study scores every render of a scene against one reference array.
+_reference_labs: list[tuple[np.ndarray, np.ndarray]] = []
+
+
+def _reference_lab(reference: np.ndarray) -> np.ndarray:
+    """:func:`~mcrt.analysis.metrics.srgb_to_lab` of ``reference``, computed once
+    per reference array (held here, so its identity is not reused)."""
+    for held, lab in _reference_labs:
+        if held is reference:
+            return lab
+    lab = srgb_to_lab(reference)
+    _reference_labs[:] = [(reference, lab), *_reference_labs[:3]]
+    return lab
+
+
 def score_seed(rgb32: np.ndarray, reference: np.ndarray, seed: int, spp: int, seconds: float,
                draws: int, correlation: np.ndarray | None) -> dict[str, Any]:
     """A seed's metrics against the reference mean: NaN/Inf pixels are counted
@@ -130,7 +146,7 @@ def score_seed(rgb32: np.ndarray, reference: np.ndarray, seed: int, spp: int, se
     return {"seed": seed, "spp": int(spp), "seconds": seconds,
             "mean_error": float(np.mean(clean - reference)),
             "mse": mse(clean, reference), "rel_mse": rel_mse(clean, reference),
-            "delta_e": delta_e_2000(clean, reference),
+            "delta_e": delta_e_2000(clean, reference, reference_lab=_reference_lab(reference)),
             "nonfinite": int(bad.sum()), "aliasing": score.as_dict()}
 
 
