@@ -252,12 +252,15 @@ def add_cluster_argument(parser: argparse.ArgumentParser) -> None:
 
 
 @contextlib.contextmanager
-def cluster_executor(option: str | None) -> Iterator[Any]:
-    """The executor for ``--cluster`` (connected before any work: a bad address is a
-    one-line error), closed afterwards. In-process (no Dask import) without one."""
-    from ..core.executor import cluster_address, executor_for
+def cluster_executor(address: str | None) -> Iterator[Any]:
+    """The executor for a cluster ``address`` already chosen (``cluster_address``
+    of ``--cluster``, or None after a command decided to stay in this process;
+    ``$MCRT_CLUSTER`` is not read again here), connected before any work (a bad
+    address is a one-line error), closed afterwards. In-process (no Dask import)
+    for None."""
+    from ..core.executor import executor_for
 
-    executor = executor_for(cluster_address(option))
+    executor = executor_for(address)
     try:
         yield executor
     finally:

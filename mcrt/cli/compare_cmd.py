@@ -25,6 +25,7 @@ from ..analysis.study import (
 )
 from ..analysis.study.conclude import bias_lines, interval_text, ratio_sentence, timing_lines
 from ..core.atomic import remedy
+from ..core.executor import cluster_address
 from ..core.job import Interrupted
 from ..errors import McrtError
 from . import SUMMARIES, _common
@@ -127,7 +128,7 @@ def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> 
         log.info("resuming: %d of %d cells were measured by an earlier run (%s; --restart "
                  "measures them again)", len(state.cells), config.cells, state.directory)
     try:
-        with _common.cluster_executor(args.cluster) as executor:
+        with _common.cluster_executor(cluster_address(args.cluster)) as executor:
             result = run_study(config, progress=not args.quiet, state=state, executor=executor,
                                retime=args.retime)
     except Interrupted as stop:

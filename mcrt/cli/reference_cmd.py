@@ -14,6 +14,7 @@ from ..analysis.reference import (
     reference_metadata,
 )
 from ..core.atomic import remedy
+from ..core.executor import cluster_address
 from ..core.job import Interrupted
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
@@ -81,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         check_output_files(out)
         note_first_run()
         try:
-            with _common.cluster_executor(args.cluster) as executor:
+            with _common.cluster_executor(cluster_address(args.cluster)) as executor:
                 ref = get_reference(args.scene, params, spp=args.spp, sampler=args.sampler,
                                     seed=args.seed, spp_per_pass=args.spp_per_pass,
                                     progress=not args.quiet, cache=not args.no_cache,
