@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,10 +138,14 @@ class Reference:
     """A reference image: per-pixel estimate and its statistics (float64).
 
     ``spp`` is the effective total samples per pixel (see :class:`PassPlan`);
-    ``seconds`` the wall time spent rendering and merging its passes (summed over
-    all sessions for a resumed or cached reference; cache writes excluded);
+    ``seconds`` the wall time, on the process that merges them, from the start of
+    the passes to the last one merged (summed over the sessions of a resumed or
+    cached reference; passes of a cluster that run at the same time count once);
     ``cached`` whether it came from the cache without rendering;
-    ``resumed_passes`` how many passes a partial state provided.
+    ``resumed_passes`` how many passes a partial state provided;
+    ``pass_seconds`` the passes' own render times added up, for the passes this
+    call rendered only (0 for a cached reference): on a cluster, the workers'
+    summed time, more than ``seconds`` when they ran at once.
     """
 
     stats: PixelStats | FilteredStats  # FilteredStats: developed with the film's filter
@@ -153,6 +158,7 @@ class Reference:
     cached: bool = False
     resumed_passes: int = 0
     plan: PassPlan | None = None
+    pass_seconds: float = 0.0
 
     @property
     def mean(self) -> np.ndarray:
@@ -279,10 +285,10 @@ class _Setup:
         return cache_paths(self.key)[1]
 
     def result(self, stats: PixelStats | FilteredStats, seconds: float, cached: bool = False,
-               resumed: int = 0) -> Reference:
+               resumed: int = 0, pass_seconds: float = 0.0) -> Reference:
         return Reference(stats=stats, spp=self.plan.spp, sampler=self.sampler, seed=self.seed,
                          passes=self.plan.passes, seconds=seconds, key=self.key, cached=cached,
-                         resumed_passes=resumed, plan=self.plan)
+                         resumed_passes=resumed, plan=self.plan, pass_seconds=pass_seconds)
 
 
 def _setup(request: ReferenceRequest) -> _Setup:
@@ -324,14 +330,19 @@ def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float,
                          setup.filtered)
     job = Job(setup.key, plan.passes, functools.partial(reference_pass, task), _merge,
               shared={"scene": setup.source})
-    saver = StateSaver(setup.key, plan, setup.finished, setup.partial, seconds, cache)
+    saver = StateSaver(setup.key, plan, setup.finished, setup.partial, cache)
     bar = Progress(plan.passes, enabled=hooks.progress, desc="reference", initial=done)
     before = start.samples if start is not None else 0
+    # Wall time on this process: passes that run at once on a cluster's workers
+    # count once, not once per worker (their own times add up to more).
+    clock = time.perf_counter()
+    folded = [0.0]  # the wall time when the last pass was merged (what the cache keeps)
 
     def on_fold(count: int, merged: StatsRender) -> None:
-        saver.save(count, merged)
-        if merged.seconds > 0:
-            bar.postfix(f"{(merged.samples - before) / merged.seconds / 1e6:.2f} M samples/s"
+        elapsed = folded[0] = time.perf_counter() - clock
+        saver.save(count, merged, seconds + elapsed)
+        if elapsed > 0:
+            bar.postfix(f"{(merged.samples - before) / elapsed / 1e6:.2f} M samples/s"
                         + cluster_status(executor))
         bar.update(1)
         if hooks.on_pass is not None:
@@ -342,12 +353,13 @@ def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float,
     except Interrupted as stop:
         if stop.partial is None:
             raise KeyboardInterrupt from None
-        raise Interrupted(setup.result(stop.partial.stats, seconds + stop.partial.seconds,
+        raise Interrupted(setup.result(stop.partial.stats, seconds + folded[0],
                                        resumed=done), stop.done, plan.passes) from None
     finally:
         bar.close()
     assert merged is not None
-    return setup.result(merged.stats, seconds + merged.seconds, resumed=done)
+    return setup.result(merged.stats, seconds + folded[0], resumed=done,
+                        pass_seconds=merged.seconds)
 
 
 @dataclass(frozen=True)

@@ -103,18 +103,19 @@ class StateSaver:
     write is noted once and turns saving off, the reference goes on)."""
 
     def __init__(self, key: str, plan: PassPlan, finished: Path, partial: Path,
-                 seconds_before: float, enabled: bool) -> None:
+                 enabled: bool) -> None:
         self.key, self.plan, self.finished, self.partial = key, plan, finished, partial
-        self.seconds_before = seconds_before
         self.saving = Saving("the reference cache", "the reference goes on without it",
                              on=enabled)
 
-    def save(self, count: int, merged: StatsRender) -> None:
+    def save(self, count: int, merged: StatsRender, seconds: float) -> None:
+        """Save the first ``count`` passes, ``merged``, made in ``seconds`` of wall
+        time (all sessions)."""
         last = count == self.plan.passes
 
         def write() -> None:
             save_state(self.finished if last else self.partial, self.key, merged.stats, count,
-                       self.plan.passes, self.seconds_before + merged.seconds, complete=last)
+                       self.plan.passes, seconds, complete=last)
             if last:
                 with contextlib.suppress(OSError):
                     self.partial.unlink()

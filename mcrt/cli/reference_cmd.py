@@ -106,7 +106,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"reference {width}x{height}  sampler {ref.sampler}  {spp_text}  passes {ref.passes} "
           f"({ref.plan.describe() if ref.plan else ''})  samples {ref.drawn_samples}"
           + (f" ({nonfinite} non-finite, excluded)" if nonfinite else ""))
-    print(f"render {_common.speed(ref.seconds, ref.samples_per_second)}  "
+    # Wall time (all sessions of a resumed reference); on a cluster the passes'
+    # own times, added up over the workers, are said apart and named as such.
+    summed = (f"  (passes' summed time on the workers {ref.pass_seconds:.2f} s)"
+              if ref.pass_seconds > 0 and cluster_address(args.cluster) else "")
+    print(f"render {_common.speed(ref.seconds, ref.samples_per_second)}{summed}  "
           f"mean stderr {float(np.mean(ref.standard_error)):.3g}  "
           f"max stderr {float(np.max(ref.standard_error)):.3g}")
     print(f"wrote {out}")

@@ -7,6 +7,7 @@ test) with short paths, so the whole file runs in a few seconds.
 from __future__ import annotations
 
 import shutil
+import time
 from pathlib import Path
 
 import mitsuba as mi
@@ -27,6 +28,7 @@ from mcrt.analysis.reference import (
 )
 from mcrt.analysis.reference_cache import cache_paths, load_state, save_state
 from mcrt.cli import main
+from mcrt.core.executor import InProcess
 from mcrt.core.sampling import make_sampler
 from mcrt.core.stats import PixelStats
 from mcrt.errors import McrtError
@@ -155,6 +157,32 @@ def test_cache_hit_renders_nothing(scene, cache, monkeypatch):
     second = get_reference(scene, SMALL, spp=64, spp_per_pass=16)
     assert second.cached and second.key == first.key and same_bits(first, second)
     assert second.seconds == first.seconds
+
+
+class _Waiting(InProcess):
+    """This process's executor, each pass's result arriving ``delay`` s after the
+    pass ended (as a cluster's do, after waiting for a worker)."""
+
+    def __init__(self, delay: float) -> None:
+        self.delay = delay
+
+    def map(self, *args, **kwargs):
+        for item in super().map(*args, **kwargs):
+            time.sleep(self.delay)
+            yield item
+
+
+def test_seconds_are_the_wall_time_of_the_passes_not_their_sum(scene, cache):
+    """A reference's time is the wall time the caller waited for its passes (4
+    results 0.3 s apart: at least 1.2 s), never more than the call took; the
+    passes' own times, added up, are reported apart. The cache keeps that time."""
+    start = time.perf_counter()
+    ref = get_reference(scene, SMALL, spp=64, spp_per_pass=16, executor=_Waiting(0.3))
+    wall = time.perf_counter() - start
+    assert 4 * 0.3 <= ref.seconds <= wall
+    assert 0 < ref.pass_seconds < ref.seconds
+    again = get_reference(scene, SMALL, spp=64, spp_per_pass=16)
+    assert again.cached and again.seconds == ref.seconds
 
 
 def test_no_cache_neither_reads_nor_writes(scene, cache):

@@ -150,6 +150,19 @@ def test_reference_on_a_cluster_is_bit_identical(cluster):
     same_stats(here, there)
 
 
+def test_a_cluster_references_seconds_are_its_wall_time(cluster):
+    """Two workers render passes at the same time: the reference's time is the
+    wall time of the call, at most, not the workers' times added up (reported
+    apart as ``pass_seconds``)."""
+    get_reference(CORNELL, PARAMS, spp=16, spp_per_pass=8, cache=False, executor=cluster)  # warm
+    start = time.perf_counter()
+    ref = get_reference(CORNELL, {"res": "32"}, spp=2048, spp_per_pass=128, cache=False,
+                        executor=cluster)
+    wall = time.perf_counter() - start
+    assert 0 < ref.seconds <= wall
+    assert ref.pass_seconds > 0
+
+
 @pytest.mark.serial  # kills a worker or the cluster at a moment it picks
 def test_ctrl_c_on_the_client_keeps_the_passes_and_resumes_without_a_cluster(cluster, cache):
     """Ctrl-C after 3 folded passes (raised on the client, as the terminal would):
