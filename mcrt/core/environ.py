@@ -1,5 +1,6 @@
-"""Numbers from ``MCRT_*`` environment variables, checked: a bad value is a
-one-line error naming the variable, not a traceback from ``float()``."""
+"""Numbers and switches from ``MCRT_*`` environment variables, checked: a bad
+value is a one-line error naming the variable, not a traceback from ``float()``
+or a value silently taken for the default."""
 
 from __future__ import annotations
 
@@ -25,4 +26,22 @@ def env_number(name: str, default: float, *, integer: bool = False,
     return value
 
 
-__all__ = ["env_number"]
+#: The spellings a switch (:func:`env_switch`) accepts, in any case.
+SWITCH_ON = ("1", "on", "true", "yes")
+SWITCH_OFF = ("0", "off", "false", "no")
+
+
+def env_switch(name: str, default: bool) -> bool:
+    """``$name`` as on/off (``default`` when unset or empty): ``1``, ``on``,
+    ``true``, ``yes`` or ``0``, ``off``, ``false``, ``no``, in any case."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    if text.lower() in SWITCH_ON:
+        return True
+    if text.lower() in SWITCH_OFF:
+        return False
+    raise McrtError(f"${name} must be 1 or 0 (also on/off, true/false, yes/no), got {text!r}")
+
+
+__all__ = ["SWITCH_OFF", "SWITCH_ON", "env_number", "env_switch"]

@@ -28,13 +28,14 @@ render of each kind says why (a note on ``mcrt.render``):
 * whatever fails to record (e.g. a sampler that reads arrays on the host while
   tracing): it is remembered and never tried again in the process.
 
-``MCRT_REPLAY=0`` renders everything unfrozen (for comparisons and A/B benchmarks).
+``MCRT_REPLAY=0`` (or ``off``, ``false``, ``no``) renders everything unfrozen (for
+comparisons and A/B benchmarks); ``1``, ``on``, ``true``, ``yes`` or unset: replay
+where it can; any other value is a one-line error (:func:`~mcrt.core.environ.env_switch`).
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
@@ -48,11 +49,12 @@ import mitsuba as mi
 from .._gc import collection_held_back
 from .accumulators import FilmAccumulator
 from .engine import PassRun, PassShape, run_passes, sampling_integrator
+from .environ import env_switch
 from .sampling import sampler_fingerprint, sampler_name, sampler_params
 
 log = logging.getLogger("mcrt.render")
 
-#: The environment variable that switches replay off (``0``).
+#: The environment variable that switches replay off (``0``, see :func:`switched_off`).
 ENV = "MCRT_REPLAY"
 
 #: Most passes a replayed render has: a render of more passes is long enough that
@@ -211,8 +213,9 @@ class SceneArrays:
 
 
 def switched_off() -> bool:
-    """Whether ``MCRT_REPLAY=0`` switches every replay off."""
-    return os.environ.get(ENV, "1").strip() == "0"
+    """Whether ``MCRT_REPLAY`` (``0``, ``off``, ``false``, ``no``) switches every
+    replay off; a value that is not a switch is a one-line :class:`McrtError`."""
+    return not env_switch(ENV, True)
 
 
 def replayable(integrator: Any) -> bool:

@@ -27,3 +27,26 @@ def test_bad_values_are_one_line_naming_the_variable(monkeypatch, text, options,
     monkeypatch.setenv("MCRT_TEST_NUMBER", text)
     with pytest.raises(McrtError, match=rf"^\$MCRT_TEST_NUMBER must be {rule}, got '{text}'$"):
         env_number("MCRT_TEST_NUMBER", 7.0, **options)
+
+
+@pytest.mark.parametrize("text, on", [
+    ("", True), ("1", True), ("on", True), ("TRUE", True), (" yes ", True),
+    ("0", False), ("off", False), ("False", False), ("no", False),
+])
+def test_replay_switch_understands_the_usual_spellings(monkeypatch, text, on):
+    """(Only ``0`` switched replay off: ``MCRT_REPLAY=off`` left it on.)"""
+    from mcrt.core import replay
+
+    monkeypatch.setenv(replay.ENV, text)
+    assert replay.switched_off() is not on
+
+
+@pytest.mark.parametrize("text", ["2", "maybe", "-1", "0.0"])
+def test_a_replay_value_that_is_no_switch_is_one_line_naming_the_variable(monkeypatch, text):
+    """(Any value but ``0`` silently left replay on.)"""
+    from mcrt.core import replay
+
+    monkeypatch.setenv(replay.ENV, text)
+    with pytest.raises(McrtError, match=rf"^\$MCRT_REPLAY must be 1 or 0 \(also on/off, "
+                                        rf"true/false, yes/no\), got '{text}'$"):
+        replay.switched_off()
