@@ -269,3 +269,30 @@ def test_an_interrupt_while_dr_jit_traces_is_an_interrupt():
     with pytest.raises(RuntimeError, match="encountered an exception"), \
             termination_as_interrupt():
         dr.while_loop((mi.UInt32(0),), lambda i: i < 3, broken)
+
+
+def test_an_interrupted_adaptive_renders_seconds_are_those_of_the_passes_kept():
+    """Ctrl-C 1 s into pass 2 drops that pass whole: the checkpoint's seconds (what
+    a resumed render's time, and so its samples per second, builds on) cover
+    passes 0 and 1 only, not the second spent on the pass dropped."""
+    import time
+
+    from mcrt.render.adaptive import AdaptiveSettings, render_adaptive
+
+    scene = small_cornell(16, box_filter=True)
+    settings = AdaptiveSettings(threshold=0.01, min_spp=16, max_spp=256)
+
+    def slow_ctrl_c_in_pass_2(k, *wavefront):
+        if k == 2:
+            time.sleep(1.0)
+            raise KeyboardInterrupt
+
+    start = time.perf_counter()
+    with pytest.raises(Interrupted) as stop:
+        render_adaptive(scene, make_sampler("jittered", 16), settings, seed=3,
+                        on_samples=slow_ctrl_c_in_pass_2)
+    took = time.perf_counter() - start
+    meta = stop.value.state.meta
+    assert meta["next_pass"] == 2 and took >= 1.0
+    kept = sum(record["seconds"] for record in meta["records"])
+    assert kept <= meta["seconds"] < took - 1.0

@@ -97,6 +97,7 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     pacer = CheckpointPacer(kept.every, state_bytes=acc.nbytes() + loop.nbytes())
     # Largest batch that fits each pixel's remaining budget (0: done).
     budget = budget_batches(acc.traced, ladder, settings.max_spp)
+    ended = start  # when the last finished pass ended (a pass in flight is dropped whole)
     try:
         while loop.active.size:
             pass_start = time.perf_counter()
@@ -130,9 +131,9 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                 failing, batch, active_next = _next_pass(acc, leader, ladder, settings,
                                                          (height, width), budget)
                 dr.sync_thread()
+                ended = time.perf_counter()
                 record = PassRecord(index=k, active_pixels=int(active.size), samples=lanes,
-                                    batch_sizes=tuple(sizes),
-                                    seconds=time.perf_counter() - pass_start,
+                                    batch_sizes=tuple(sizes), seconds=ended - pass_start,
                                     converged_pixels=int(pixels - failing.sum()),
                                     nonfinite=bad_total)
                 loop.advance(record, leader, batch, active_next)
@@ -142,8 +143,10 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                 pacer.maybe(kept.save, lambda: loop.snapshot(acc, start))
     except KeyboardInterrupt:
         k = loop.next_pass
+        # The seconds of the passes kept: the time of the pass dropped is not
+        # theirs (a resumed render's samples per second count the same work).
         raise Interrupted(finish() if k > 0 else None, k, k + 1,
-                          state=loop.snapshot(acc, start)) from None
+                          state=loop.snapshot(acc, start, ended)) from None
     return finish()
 
 

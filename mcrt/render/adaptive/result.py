@@ -48,7 +48,8 @@ class AdaptiveRender:
     spp: np.ndarray
     passes: list[PassRecord]
     #: Wall time of the passes and of developing the image (a film render's
-    #: includes its film's development too), a resumed render's earlier runs included.
+    #: includes its film's development too), a resumed render's earlier runs included
+    #: (the passes they kept: a pass an interruption dropped is not counted).
     seconds: float
     settings: AdaptiveSettings
     sampler: str
