@@ -15,6 +15,8 @@ and ``mi.render(scene)`` renders adaptively. The engine is
 
 from __future__ import annotations
 
+import logging
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -24,6 +26,8 @@ from . import adaptive
 from .adaptive import PARAMETERS, PARAMETERS_BY_NAME, AdaptiveSettings, Param, render_adaptive
 from .plugins import fill_parameters, register_integrator, wrapper_properties
 from .plugins import parameter_row as plugin_row
+
+log = logging.getLogger("mcrt.render")
 
 #: Variant whose ``mi.SamplingIntegrator`` the plugin class derives from.
 _classes_variant = mi.variant()
@@ -101,9 +105,30 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
     def render(self, scene: mi.Scene, sensor: int | mi.Sensor = 0,  # type: ignore[override]
                seed: int = 0, spp: int = 0, develop: bool = True,
                evaluate: bool = True) -> mi.TensorXf:
-        """Render adaptively; ``spp`` (if nonzero) overrides ``max_spp``."""
+        """Render adaptively; ``spp`` (if nonzero) overrides ``max_spp``.
+
+        ``mi.render`` calls this inside a Dr.Jit custom operation, which replaces
+        any exception by its own ``RuntimeError('drjit.custom(...): error while
+        performing a custom differentiable operation. (see above).')``: an
+        :class:`McrtError` is therefore also logged (on ``mcrt.render``, at error
+        level; Python prints it on stderr when logging is not set up), so the
+        reason is not only in the wrapper's ``__cause__``."""
+        try:
+            return self._render(scene, sensor, seed, spp, develop)
+        except McrtError as error:
+            log.error("%s", error)
+            raise
+
+    def _render(self, scene: mi.Scene, sensor: int | mi.Sensor, seed: int, spp: int,
+                develop: bool) -> mi.TensorXf:
         sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
         settings = self.settings
+        if spp and int(spp) < settings.min_spp:
+            raise McrtError(f"adaptive: spp={int(spp)} (mi.render's spp sets the budget "
+                            f"max_spp) is below min_spp ({settings.min_spp}), the samples of "
+                            f"every pixel's first pass; pass spp >= {settings.min_spp} (0: "
+                            f"max_spp {settings.max_spp}) or give the integrator a smaller "
+                            f"min_spp")
         if spp:
             settings = AdaptiveSettings(**{**settings.__dict__, "max_spp": int(spp)}).check()
         result = render_adaptive(scene, settings=settings, seed=_seed_value(seed),
