@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     planned = plan_scene(args.scene, params, overrides,
                          wrap="multisample" if multisample else None)
     if multisample:
-        _note_shading_noise(planned.plan.effects_on)
+        _note_shading_noise(planned.plan.effects_on, planned.scene.sensors()[0])
     scene = planned.scene
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
@@ -402,12 +402,15 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
 SHADING_EFFECTS = ("soft_shadows", "glossy", "indirect")
 
 
-def _note_shading_noise(effects_on: list[str]) -> None:
+def _note_shading_noise(effects_on: list[str], sensor) -> None:
     """Multisampling shades once per surface per pixel: stochastic shading (area
     lights, rough BSDFs, indirect light) then gets that one sample, not the N of
-    supersampling. Say so, once, where a user would otherwise wonder at the noise."""
+    supersampling. Say so, once, where a user would otherwise wonder at the noise
+    (not on a sensor where every sample is shaded, a radiance meter's)."""
+    from ..render.multisample_integrator import shares_shading
+
     noisy = [e for e in SHADING_EFFECTS if e in effects_on]
-    if noisy:
+    if noisy and shares_shading(sensor):
         log.warning("--multisample shades each surface once per pixel: this scene's %s noise "
                     "is sampled at that rate, so the image is far noisier than supersampling "
                     "at the same spp; multisampling pays off for edges over cheap, noise-free "

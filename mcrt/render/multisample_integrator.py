@@ -193,7 +193,7 @@ class MultisampleIntegrator(mi.SamplingIntegrator):
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Visibility for every lane, shading for one representative per group."""
-        lanes = max(dr.width(ray.o), dr.width(ray.d))
+        lanes = _ray_width(ray)
         if lanes == 1 and sampler.wavefront_size() > 1:
             # One ray for every sample (a radiance meter's): no surfaces to tell
             # apart, every lane shaded by the nested integrator's own samples.
@@ -257,6 +257,22 @@ class _State:
         self.shading = mi.load_dict({"type": "independent", "sample_count": 1})
 
 
+def _ray_width(ray: mi.Ray3f) -> int:
+    return max(dr.width(ray.o), dr.width(ray.d))
+
+
+def shares_shading(sensor: mi.Sensor) -> bool:
+    """Whether multisampling shares shading among a pixel's samples on ``sensor``:
+    not when it traces one ray for every sample (a radiance meter's), where
+    :meth:`MultisampleIntegrator.sample` shades every lane."""
+    from .plan.camera import auto_float
+
+    ray, _ = sensor.sample_ray(auto_float(0.0), auto_float(0.5),
+                               mi.Point2f([0.25, 0.75], [0.25, 0.75]),
+                               mi.Point2f(0.5, 0.5))
+    return _ray_width(ray) > 1
+
+
 def _add(counts: ShadingCounts, per_pixel: np.ndarray, lanes: int, group: int, width: int,
          height: int) -> None:
     """Add one wavefront's counts (read from the device) to ``counts``."""
@@ -285,4 +301,4 @@ def register() -> None:
     register_integrator("multisample", __name__, "MultisampleIntegrator")
 
 
-__all__ = ["PARAMETERS", "MultisampleIntegrator", "ShadingCounts", "register"]
+__all__ = ["PARAMETERS", "MultisampleIntegrator", "ShadingCounts", "register", "shares_shading"]

@@ -267,6 +267,34 @@ def test_multisampling_a_scene_with_shading_noise_says_what_it_costs(tmp_path, c
     assert code == 0 and "noisier" not in err
 
 
+def test_a_radiance_meter_with_shading_noise_gets_no_note_about_it(tmp_path, capsys):
+    """On a radiance meter every lane is shaded (no surfaces to share), so its
+    soft-shadow noise is sampled at the full rate: no note that the image is
+    'far noisier than supersampling' (it printed one, while the counts line
+    said 1.0000 evaluations per sample)."""
+    scene = tmp_path / "meter.xml"
+    scene.write_text("""<scene version="3.0.0">
+        <integrator type="path"/>
+        <sensor type="radiancemeter">
+            <point name="origin" x="0" y="0" z="3"/><vector name="direction" x="0" y="0" z="-1"/>
+            <film type="hdrfilm"><integer name="width" value="1"/>
+                <integer name="height" value="1"/><rfilter type="box"/></film>
+        </sensor>
+        <shape type="rectangle"><bsdf type="diffuse"/></shape>
+        <shape type="rectangle">
+            <transform name="to_world"><rotate x="1" angle="180"/><translate z="2"/>
+                <scale value="0.3"/></transform>
+            <emitter type="area"><rgb name="radiance" value="10"/></emitter>
+        </shape>
+    </scene>""")
+    code, out, err = run_cli(capsys, "render", str(scene), "--multisample", "--spp", "16",
+                             "-o", str(tmp_path / "m"))
+    assert code == 0, err
+    assert "plan: aa, soft_shadows" in err  # the effect the note is about is there
+    assert "multisample: 16 shading evaluations for 16 samples" in out
+    assert "noisier" not in err
+
+
 def _representatives_reference(keys, distance, group, active):
     """Brute force: the lowest-(distance, lane) active lane of the block with all keys equal."""
     lanes = len(active)
