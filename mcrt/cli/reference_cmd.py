@@ -111,10 +111,20 @@ def run(args: argparse.Namespace) -> int:
     summed = (f"  (passes' summed time on the workers {ref.pass_seconds:.2f} s)"
               if ref.pass_seconds > 0 and cluster_address(args.cluster) else "")
     print(f"render {_common.speed(ref.seconds, ref.samples_per_second)}{summed}  "
-          f"mean stderr {float(np.mean(ref.standard_error)):.3g}  "
-          f"max stderr {float(np.max(ref.standard_error)):.3g}")
+          f"{_stderr_summary(ref.standard_error)}")
     print(f"wrote {out}")
     return 0
+
+
+def _stderr_summary(stderr: np.ndarray) -> str:
+    """``mean stderr X  max stderr Y`` over the pixels whose error is known (NaN:
+    no finite sample), and how many are not."""
+    known = stderr[np.isfinite(stderr)]
+    if known.size == 0:
+        return "stderr unknown (no finite samples)"
+    unknown = int(np.count_nonzero(~np.isfinite(stderr).all(axis=-1)))
+    return (f"mean stderr {float(np.mean(known)):.3g}  max stderr {float(np.max(known)):.3g}"
+            + (f"  ({unknown} pixels without a finite sample: stderr NaN)" if unknown else ""))
 
 
 def _interrupted(stop: Interrupted, args: argparse.Namespace, params: dict[str, str],

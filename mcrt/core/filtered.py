@@ -91,7 +91,10 @@ class FilteredStats:
 
     @property
     def standard_error(self) -> np.ndarray:
-        return np.sqrt(self.variance_of_mean)
+        """``sqrt(variance_of_mean)``; NaN (unknown) where no finite sample
+        reached the pixel (every one NaN/Inf, left out)."""
+        unknown = (self.sums["w2"][..., 0] == 0)[..., None]  # no finite sample's weight
+        return np.where(unknown, np.nan, np.sqrt(self.variance_of_mean))
 
     @property
     def effective_count(self) -> np.ndarray:

@@ -135,5 +135,7 @@ class PixelStats:
 
     @property
     def standard_error(self) -> np.ndarray:
-        """Standard error of the pixel estimate, ``sqrt(variance / n)``."""
-        return np.sqrt(self.variance_of_mean)
+        """Standard error of the pixel estimate, ``sqrt(variance / n)``; NaN (unknown)
+        where no sample was finite (n = 0: every sample NaN/Inf, left out)."""
+        unknown = (self.count == 0)[..., None]
+        return np.where(unknown, np.nan, np.sqrt(self.variance_of_mean))

@@ -533,6 +533,32 @@ def test_nan_pixels_do_not_stall_or_poison_the_render(edges, caplog):
     assert "NaN/Inf samples left out" in caplog.text
 
 
+def test_a_pixel_without_a_finite_sample_has_an_unknown_standard_error(edges, tmp_path):
+    """A pixel all of whose samples were NaN is not exact: its standard errors
+    (stderr per channel, stderr_y) are NaN, every other pixel's finite; the EXR,
+    PNG and heat map are written and the EXR reads back with those NaNs."""
+    from mcrt.io import write_exr, write_png
+    from mcrt.io.heatmap import write_heatmap
+
+    settings = AdaptiveSettings(threshold=0.05, max_spp=64)
+    result = render_adaptive(edges, make_sampler("jittered", 16), settings, seed=4,
+                             integrator=NaNDirect(mi.Properties()))
+    dead = result.stats.count == 0
+    assert dead[:, :10].all() and not dead.all()
+    layers = result.layers()
+    for name in ("stderr", "stderr_y"):
+        unknown = ~np.isfinite(layers[name])
+        assert np.array_equal(unknown if unknown.ndim == 2 else unknown.any(axis=-1), dead)
+    assert np.isnan(result.standard_error[dead]).all()
+    assert not result.converged[dead].any()  # an unknown error never passes the test
+    write_exr(tmp_path / "a.exr", layers, {}, channels=result.film_channels())
+    write_png(tmp_path / "a.png", result.rgb)
+    write_heatmap(tmp_path / "a_spp.png", result.spp, settings.min_spp, settings.max_spp)
+    back, _ = read_exr(tmp_path / "a.exr")
+    assert np.isnan(back["stderr"][dead]).all() and np.isfinite(back["stderr"][~dead]).all()
+    assert np.isfinite(back["rgb"]).all()
+
+
 # -- the `adaptive` plugin and the CLI ---------------------------------------------------
 
 def test_plugin_renders_from_xml_through_mi_render():

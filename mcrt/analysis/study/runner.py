@@ -304,7 +304,8 @@ class _Run:
         self.references[spec.name] = ReferenceInfo(
             scene=spec.name, spp=int(ref.spp), sampler=config.sampler,
             seconds=float(ref.seconds), noise_floor=floor,
-            rel_noise_floor=float(np.mean(var / (mean ** 2 + REL_MSE_EPSILON))),
+            rel_noise_floor=float(np.nanmean(var / (mean ** 2 + REL_MSE_EPSILON))
+                                  if np.isfinite(var).any() else 0.0),
             width=int(width), height=int(height), cached=bool(getattr(ref, "cached", False)))
         self.reference_images[spec.name] = mean
         if self.state is not None:
