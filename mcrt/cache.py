@@ -26,11 +26,12 @@ def cache_dir(name: str) -> Path:
 
 
 def cache_variable(path: str | os.PathLike) -> str | None:
-    """``"$MCRT_CACHE_DIR=ROOT"`` when ``path`` lies under that variable's root
-    (so a message about ``path`` can name where it came from), else None."""
-    root = os.environ.get("MCRT_CACHE_DIR")
-    if not root:
+    """Where ``path`` came from when it lies under the cache root, so a message
+    about it can say so and how to move it: ``"$MCRT_CACHE_DIR=ROOT"``, or for
+    the default root ``"mcrt's cache ROOT; $MCRT_CACHE_DIR moves it"``; else None."""
+    root = cache_root()
+    if not Path(path).absolute().is_relative_to(root.absolute()):
         return None
-    if not Path(path).absolute().is_relative_to(Path(root).absolute()):
-        return None
-    return f"$MCRT_CACHE_DIR={root}"
+    if os.environ.get("MCRT_CACHE_DIR"):
+        return f"$MCRT_CACHE_DIR={root}"
+    return f"mcrt's cache {root}; $MCRT_CACHE_DIR moves it"

@@ -52,3 +52,15 @@ def test_output_directory_message_does_not_blame_the_cache(tmp_path, monkeypatch
         check_free_space(blocker / "out", 1, "the images")
     assert str(error.value) == (f"cannot create {blocker / 'out'} (the images): "
                                 f"{blocker} is not a directory")
+
+
+def test_the_default_cache_root_says_how_to_move_it(tmp_path, capsys, monkeypatch):
+    """Without $MCRT_CACHE_DIR (a read-only home, say) the message names the
+    default root and the variable that moves it."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.delenv("MCRT_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
+    code, err = _reference(tmp_path, capsys)
+    assert code == 2 and f"{blocker} is not a directory" in err, err
+    assert f"mcrt's cache {blocker / 'mcrt'}; $MCRT_CACHE_DIR moves it" in err, err
