@@ -216,7 +216,7 @@ def _half_power(x: np.ndarray) -> np.ndarray:
     """``|rfft2(x)|^2`` over the last two axes.
 
     (scipy's ``rfft2``: the same pocketfft transform and bits as numpy's, measured
-    ~3.5x faster on a stack of images, ``benchmarks/study_scoring.py``.)"""
+    ~3.5x faster on a stack of images, ``benchmarks/scoring_cost.py``.)"""
     import scipy.fft
 
     return np.abs(scipy.fft.rfft2(x)) ** 2
