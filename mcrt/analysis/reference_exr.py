@@ -19,15 +19,15 @@ if TYPE_CHECKING:
 def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
     """EXR layers of a reference: ``rgb`` (mean), ``variance`` (per-sample),
     ``stderr`` (of the mean), ``count`` (samples per pixel; float32 in the file,
-    exact up to 2^24 per pixel) and ``nonfinite`` if any sample was NaN/Inf."""
-    layers = {"rgb": ref.mean.astype(np.float32),
-              "variance": ref.variance.astype(np.float32),
-              "stderr": ref.standard_error.astype(np.float32),
-              "count": ref.stats.count.astype(np.float32)}
+    exact up to 2^24 per pixel) and ``nonfinite`` if any sample was NaN/Inf. The
+    arrays are the float64 sums' own: :func:`~mcrt.io.write_exr` stores them as
+    float32 and says where a finite value overflows it (a variance past 3.4e38)."""
+    layers = {"rgb": ref.mean, "variance": ref.variance, "stderr": ref.standard_error,
+              "count": ref.stats.count}
     if isinstance(ref.stats, FilteredStats):
-        layers["effective_count"] = ref.stats.effective_count.astype(np.float32)
+        layers["effective_count"] = ref.stats.effective_count
     if ref.stats.nonfinite.any():
-        layers["nonfinite"] = ref.stats.nonfinite.astype(np.float32)
+        layers["nonfinite"] = ref.stats.nonfinite
     return layers
 
 

@@ -50,12 +50,15 @@ OpenEXR bindings give them.
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Mapping
 
 import numpy as np
 
 from ..core.atomic import ImageIOError, atomic_path, ensure_readable, read_error, write_error
+
+log = logging.getLogger("mcrt.io")
 
 #: Layer whose channels are written without a prefix (``R G B [A]``).
 MAIN_LAYER = "rgb"
@@ -93,8 +96,23 @@ def _layer_channels(name: str, array) -> list[tuple[str, np.ndarray]]:
     if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
         raise ValueError(f"EXR layer {name!r} must hold real numbers, got dtype {a.dtype}")
     prefix = "" if name == MAIN_LAYER else name + "."
-    return [(prefix + s, np.ascontiguousarray(p, dtype=np.float32))
-            for s, p in zip(suffixes, planes, strict=True)]
+    return [(prefix + s, p) for s, p in zip(suffixes, _float32(f"layer {name}", planes),
+                                            strict=True)]
+
+
+def _float32(what: str, planes: list[np.ndarray]) -> list[np.ndarray]:
+    """``planes`` as contiguous float32 arrays. Finite values beyond float32's
+    range (3.4e38, e.g. a variance of huge radiance) become Inf, said in one
+    warning on ``mcrt.io`` naming ``what`` (not numpy's bare RuntimeWarning)."""
+    with np.errstate(over="ignore"):
+        out = [np.ascontiguousarray(p, dtype=np.float32) for p in planes]
+    overflowed = sum(int(np.count_nonzero(np.isinf(o) & np.isfinite(p)))
+                     for o, p in zip(out, planes, strict=True)
+                     if np.issubdtype(p.dtype, np.floating) and p.dtype.itemsize > 4)
+    if overflowed:
+        log.warning("EXR %s: %d finite values beyond float32's range (3.4e38) are stored as "
+                    "Inf", what, overflowed)
+    return out
 
 
 def _raw_channel(name: str, plane) -> np.ndarray:
@@ -107,7 +125,7 @@ def _raw_channel(name: str, plane) -> np.ndarray:
             or np.issubdtype(a.dtype, np.complexfloating):
         raise ValueError(f"EXR channel {name!r} must be a real (H, W) array, got "
                          f"{a.shape} {a.dtype}")
-    return np.ascontiguousarray(a, dtype=np.float32)
+    return _float32(f"channel {name}", [a])[0]
 
 
 def _header_value(key, value):

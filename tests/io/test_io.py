@@ -500,3 +500,28 @@ def test_png_writer_is_read_back_by_pillow(tmp_path):
         with Image.open(path) as image:
             assert image.mode == "RGB" and image.size == (width, height)
             np.testing.assert_array_equal(np.asarray(image), encode_srgb(rgb))
+
+
+def test_finite_values_beyond_float32_are_said_once_per_layer(tmp_path, caplog):
+    """A float64 variance of huge radiance passes float32's 3.4e38: the file holds
+    Inf there (read back with OpenEXR), said in one warning per layer with the
+    count of such finite values, not as numpy's bare RuntimeWarning; Inf and NaN
+    given as such are not counted."""
+    import logging
+    import warnings
+
+    variance = np.array([[1e39, 2.0], [np.inf, np.nan]])
+    rgb = np.ones((2, 2, 3))
+    rgb[0, 0] = -1e300
+    with warnings.catch_warnings(), caplog.at_level(logging.WARNING, logger="mcrt.io"):
+        warnings.simplefilter("error")
+        write_exr(tmp_path / "v.exr", {"rgb": rgb, "variance": variance},
+                  channels={"Y": np.full((2, 2), 1.0)})
+    messages = [r.getMessage() for r in caplog.records]
+    assert messages == ["EXR layer rgb: 3 finite values beyond float32's range (3.4e38) are "
+                        "stored as Inf",
+                        "EXR layer variance: 1 finite values beyond float32's range (3.4e38) "
+                        "are stored as Inf"], messages
+    back = OpenEXR.File(str(tmp_path / "v.exr")).channels()
+    assert back["variance.Y"].pixels[0, 0] == np.inf and back["variance.Y"].pixels[0, 1] == 2.0
+    assert (back["RGB"].pixels[0, 0] == -np.inf).all()

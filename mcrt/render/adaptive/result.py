@@ -101,12 +101,10 @@ class AdaptiveRender:
         return self.stats.nonfinite
 
     def layers(self) -> dict[str, np.ndarray]:
-        """Float32 layers for :func:`mcrt.io.write_exr` besides :meth:`film_channels`."""
-        return {"variance": self.variance.astype(np.float32),
-                "stderr": self.standard_error.astype(np.float32),
-                "stderr_y": self.luminance_stderr.astype(np.float32),
-                "spp": self.spp.astype(np.float32),
-                "nonfinite": self.nonfinite.astype(np.float32)}
+        """Layers for :func:`mcrt.io.write_exr` besides :meth:`film_channels` (it
+        stores them as float32 and says where a finite value overflows it)."""
+        return {"variance": self.variance, "stderr": self.standard_error,
+                "stderr_y": self.luminance_stderr, "spp": self.spp, "nonfinite": self.nonfinite}
 
     def summary(self) -> dict:
         """Scalars for metadata and reports."""
