@@ -19,7 +19,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from ..core.provenance import COMMAND, absolute, command_text, scene_facts, software
+from ..core.provenance import COMMAND, absolute, command_text, param_word, scene_facts, software
 from ..core.sampling import sampler_fingerprint, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
 from ..errors import McrtError
@@ -40,7 +40,8 @@ def render_words(args: argparse.Namespace, spp: int) -> list[str]:
     words = [absolute(args.scene)]
     if args.sampler:  # else the scene's own sampler, with its own parameters
         words += ["--sampler", args.sampler]
-        words += [w for p in getattr(args, "sampler_params", None) or [] for w in ("-P", p)]
+        words += [w for p in getattr(args, "sampler_params", None) or []
+                  for w in ("-P", param_word(p))]
     words += ["--spp", str(spp), "--seed", str(args.seed)]
     words += [w for d in args.defines or [] for w in ("-D", d)]
     words += [w for e in args.effect or [] for w in ("--effect", e)]

@@ -87,6 +87,21 @@ def absolute(path: str | Path) -> str:
     return str(Path(path).expanduser().resolve())
 
 
+#: Sampler parameters that name a file (the ``pointset`` sampler's point sets,
+#: read relative to the working directory).
+FILE_PARAMS = ("filename",)
+
+
+def param_word(item: str) -> str:
+    """A ``-P key=value`` item as a recorded command gives it: a parameter that
+    names a file (:data:`FILE_PARAMS`) by absolute path, so that the command
+    runs from any directory; any other item as it is."""
+    key, sep, value = item.partition("=")
+    if sep and key.strip() in FILE_PARAMS and value.strip():
+        return f"{key.strip()}={absolute(value.strip())}"
+    return item
+
+
 def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
     """The words of a header's ``command`` after ``mcrt`` (an error naming the
     file if it has none: not written by mcrt, or by a version before commands
@@ -101,5 +116,5 @@ def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
     return words[1:]
 
 
-__all__ = ["COMMAND", "absolute", "command_text", "command_words", "plugin_files", "scene_facts",
-           "software"]
+__all__ = ["COMMAND", "FILE_PARAMS", "absolute", "command_text", "command_words", "param_word",
+           "plugin_files", "scene_facts", "software"]

@@ -194,6 +194,32 @@ def test_from_renders_every_image_of_a_study_again(capsys, tmp_path):
         assert code == 0 and "bit for bit" in out, (f, out)
 
 
+def test_a_point_set_file_given_by_a_relative_path_is_found_from_another_folder(
+        capsys, tmp_path, monkeypatch):
+    """``-P filename=sets.npz`` (the pointset sampler) is read relative to the
+    working directory: a render's command, and a study image's, name the file by
+    absolute path, so that ``--from`` renders it again from another folder."""
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    rng = np.random.default_rng(1)
+    np.savez("sets.npz", *(rng.random((16, n, 2)).astype(np.float32) * 0.99 for n in (4, 16)))
+    sets = str((tmp_path / "work" / "sets.npz").resolve())
+    config = Path("s.toml")
+    config.write_text('name = "s"\nspp = [4, 16]\nseeds = 2\nimage_spp = 4\n'
+                      'samplers = [{name = "pointset", params = { filename = "sets.npz" }}]\n'
+                      f'[reference]\nspp = 64\n[[scenes]]\npath = "{CORNELL}"\nname = "box"\n'
+                      'params = { res = 8 }\n')
+    assert run_cli(capsys, "-q", "render", str(CORNELL), "-D", "res=8", "--sampler", "pointset",
+                   "-P", "filename=sets.npz", "--spp", "4", "-o", "r")[0] == 0
+    assert run_cli(capsys, "-q", "compare", str(config), "-o", "study")[0] == 0
+    made = [Path("r.exr").resolve(), Path("study/exr/box/pointset_4spp_seed0.exr").resolve()]
+    monkeypatch.chdir(tmp_path)
+    for f in made:
+        assert f"filename={sets}" in shlex.split(_header(f)["command"]), f
+        code, out, err = _again(capsys, f, "-o", f"again/{f.stem}")
+        assert code == 0 and "bit for bit" in out, (f, out, err)
+
+
 def test_from_says_when_pixels_differ_and_why(capsys):
     """A file whose pixels were changed after rendering: exit status 1 and the
     count of pixels that differ; a changed scene: a note before rendering."""

@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core.provenance import COMMAND, absolute, command_text, plugin_files
+from ...core.provenance import COMMAND, absolute, command_text, param_word, plugin_files
 
 if TYPE_CHECKING:
     from ..reference import Reference
@@ -172,7 +172,8 @@ def seed_command(result: StudyResult, record: SceneRecord, sampler: SamplerSpec,
     words = [absolute(scene.path),
              *[w for k, v in scene.params.items() for w in ("-D", f"{k}={v}")],
              "--sampler", sampler.name,
-             *[w for k, v in sampler.params.items() for w in ("-P", f"{k}={_cli_value(v)}")],
+             *[w for k, v in sampler.params.items()
+               for w in ("-P", param_word(f"{k}={_cli_value(v)}"))],
              "--spp", spp]
     plugins: list[str | Path] = [*result.config.plugins, *plugin_files(sampler.name)]
     return command_text("render", *words, plugins=plugins,
