@@ -33,10 +33,36 @@ MIN_DISPLAY_PX = 400
 #: top (the title), bottom.
 MARGINS = (12, 110, 42, 12)
 
+#: Room added at the top for each further line of the title, in pixels.
+TITLE_LINE_PX = 13
+
+
+#: Side below which a thin map's rows (or columns) are drawn taller (wider) by a
+#: whole factor, so the map, its title and its colour bar stay readable (a
+#: 4096 x 1 film), in screen pixels.
+MIN_MAP_SIDE_PX = 200
+
 
 def display_scale(width: int, height: int) -> int:
     """Whole enlargement factor of a ``width`` x ``height`` map (at least 1)."""
     return max(1, MIN_DISPLAY_PX // max(width, height, 1))
+
+
+def thin_stretch(extent: int, scale: int) -> int:
+    """Whole factor by which the rows (columns) of a map side drawn ``extent *
+    scale`` pixels long are drawn longer still, to :data:`MIN_MAP_SIDE_PX` (1: none)."""
+    return max(1, math.ceil(MIN_MAP_SIDE_PX / max(extent * scale, 1)))
+
+
+def spp_ticks(lo: float, hi: float) -> list[float]:
+    """Colour-bar ticks of a log scale from ``lo`` to ``hi``: both ends and the
+    powers of two between (at most 9, evenly thinned), so a map whose counts are
+    all equal still has its one value labelled."""
+    inner = [2.0 ** e for e in range(math.ceil(math.log2(lo)), math.floor(math.log2(hi)) + 1)]
+    inner = [t for t in inner if lo * 1.1 < t < hi / 1.1]
+    step = max(1, math.ceil(len(inner) / 7))
+    ticks = [lo, *inner[::step]]
+    return ticks + [hi] if round(hi) != round(lo) else ticks
 
 
 def default_title(spp: np.ndarray) -> str:
@@ -62,22 +88,35 @@ def write_heatmap(path, spp: np.ndarray, lo: float | None = None,
     hi = max(float(spp.max()) if hi is None else float(hi), lo * 1.0001)
     height, width = spp.shape[:2]
     k = display_scale(width, height)
+    tall, wide = thin_stretch(height, k), thin_stretch(width, k)
+    map_w, map_h = width * k * wide, height * k * tall
+    text = title if title is not None else default_title(spp)
+    if map_w < 320:  # a narrow map: the title on two lines, not clipped
+        text = text.replace(": ", ":\n", 1)
+    stretched = [f"rows drawn {tall}x taller" if tall > 1 else "",
+                 f"columns drawn {wide}x wider" if wide > 1 else ""]
+    note = ", ".join(filter(None, stretched))
+    text += f"\n({note})" if note else ""
     left, right, top, bottom = MARGINS
-    fig_w, fig_h = width * k + left + right, height * k + top + bottom
+    top += TITLE_LINE_PX * text.count("\n")
+    fig_w, fig_h = map_w + left + right, map_h + top + bottom
     dpi = 100
     fig = Figure(figsize=(fig_w / dpi, fig_h / dpi), dpi=dpi)
     FigureCanvasAgg(fig)
-    ax = fig.add_axes((left / fig_w, bottom / fig_h, width * k / fig_w, height * k / fig_h))
+    ax = fig.add_axes((left / fig_w, bottom / fig_h, map_w / fig_w, map_h / fig_h))
     image = ax.imshow(np.maximum(spp, lo), cmap=colormap, norm=LogNorm(vmin=lo, vmax=hi),
-                      interpolation="nearest")
+                      interpolation="nearest", aspect="auto")
     ax.set_xticks([])
     ax.set_yticks([])
-    ax.set_title(title if title is not None else default_title(spp), fontsize=9)
-    bar = fig.add_axes(((left + width * k + 14) / fig_w, bottom / fig_h, 14 / fig_w,
-                        height * k / fig_h))
-    fig.colorbar(image, cax=bar).set_label("samples per pixel (log scale)", fontsize=9)
+    ax.set_title(text, fontsize=9)
+    bar = fig.add_axes(((left + map_w + 14) / fig_w, bottom / fig_h, 14 / fig_w, map_h / fig_h))
+    colorbar = fig.colorbar(image, cax=bar)
+    colorbar.set_ticks(spp_ticks(lo, hi), labels=[f"{t:.0f}" for t in spp_ticks(lo, hi)])
+    colorbar.minorticks_off()
+    colorbar.set_label("samples per pixel (log scale)", fontsize=9)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
 
 
-__all__ = ["default_title", "display_scale", "heatmap", "write_heatmap"]
+__all__ = ["default_title", "display_scale", "heatmap", "spp_ticks", "thin_stretch",
+           "write_heatmap"]

@@ -308,3 +308,56 @@ def test_progress_off_a_terminal_is_plain_lines_for_a_log(capsys, monkeypatch):
     with progress.Progress(4, enabled=False) as bar:
         bar.update(4)
     assert capsys.readouterr().err == ""
+
+
+def test_heat_map_ticks_label_both_ends_and_powers_of_two():
+    from mcrt.io.heatmap import spp_ticks
+
+    assert spp_ticks(16, 64) == [16, 32, 64]
+    assert spp_ticks(16, 16 * 1.0001) == [16]  # every pixel took the same count
+    assert spp_ticks(3, 7) == [3, 4, 7]
+    wide = spp_ticks(1, 2 ** 20)
+    assert wide[0] == 1 and wide[-1] == 2 ** 20 and len(wide) <= 9
+    assert all(t == 2 ** round(np.log2(t)) for t in wide)
+
+
+def test_a_heat_map_of_equal_counts_labels_its_one_value(tmp_path):
+    """min == max: the colour bar carries one tick label, 16, at its foot (the log
+    locator alone spread nine clipped labels 1.6 x 10^1 ... 1.60016 x over the
+    range 16..16.0016 that keeps the norm valid)."""
+    from PIL import Image
+
+    from mcrt.io.heatmap import MARGINS, display_scale, write_heatmap
+
+    write_heatmap(tmp_path / "h.png", np.full((4, 4), 16.0))
+    png = np.asarray(Image.open(tmp_path / "h.png").convert("L")).astype(int)
+    left, _, top, bottom = MARGINS
+    side = 4 * display_scale(4, 4)
+    bar_right = left + side + 14 + 14
+    labels = png[top:top + side, bar_right + 4:bar_right + 28] < 100  # tick labels only
+    assert labels[-20:].any() and not labels[:-20].any()
+
+
+def test_a_thin_film_s_heat_map_is_drawn_readable(tmp_path):
+    """A 64 x 1 film: its one row is drawn taller by a whole factor (each pixel a
+    block of its colour, never interpolated) to at least MIN_MAP_SIDE_PX, and
+    the title says so."""
+    from matplotlib import colormaps
+    from matplotlib.colors import LogNorm
+    from PIL import Image
+
+    from mcrt.io.heatmap import MARGINS, MIN_MAP_SIDE_PX, display_scale, thin_stretch, write_heatmap
+
+    spp = (2.0 ** (np.arange(64) % 7 + 1)).reshape(1, 64)
+    write_heatmap(tmp_path / "h.png", spp, 2, 128)
+    png = np.asarray(Image.open(tmp_path / "h.png").convert("RGB")).astype(int)
+    k = display_scale(64, 1)
+    tall = thin_stretch(1, k)
+    assert tall > 1 and k * tall >= MIN_MAP_SIDE_PX
+    left, _, _, bottom = MARGINS
+    expected = colormaps["inferno"](LogNorm(2, 128)(spp))[..., :3] * 255
+    row = png.shape[0] - bottom - k * tall  # the map's first screen row
+    for j in range(64):
+        block = png[row + 2:row + k * tall - 2, left + j * k + 1:left + (j + 1) * k - 1]
+        assert np.abs(block - expected[0, j]).max() <= 2, j
+    assert (png[:row - 4, left:left + 64 * k] < 128).any()  # the title, on its lines
