@@ -168,11 +168,13 @@ def render_html(data: dict[str, Any], figures: list[str]) -> str:
 
 
 def write_report(out: Path, name: str, params: dict[str, Any], seed: int, quick: bool,
-                 results: list[CheckResult], spp: int | None = None) -> list[str]:
+                 results: list[CheckResult], spp: int | None = None,
+                 record: dict[str, str] | None = None) -> list[str]:
     """Write the figures, ``results.json`` and ``report.html`` to ``out``; returns
-    the names of the files written."""
+    the names of the files written. ``record``: how the run was made (its
+    ``command`` and the versions), added to ``results.json``."""
     figures = _figures(out, name, results)
-    data = summary(name, params, seed, quick, results, spp)
+    data = {**summary(name, params, seed, quick, results, spp), **(record or {})}
     write_json(out / "results.json", data)
     with atomic_path(out / "report.html") as tmp:
         Path(tmp).write_text(render_html(data, figures), encoding="utf-8")

@@ -272,3 +272,22 @@ def sampler_choices() -> str:
     from ..samplers import standalone_names
 
     return f"{', '.join(standalone_names())}, or one a --plugin registers"
+
+
+def recorded(args: argparse.Namespace, *words: Any) -> dict[str, str]:
+    """What a command's JSON records about how it was made: the ``command`` that
+    runs it again (``mcrt --variant V [--plugin FILE]... COMMAND WORDS``, plugin
+    files by absolute path, no ``-o``) and the versions of mcrt, Mitsuba and
+    Dr.Jit (:mod:`mcrt.core.provenance`)."""
+    from ..core.provenance import COMMAND, command_text, software
+
+    plugins = getattr(args, "plugin_files", None) or []
+    return {COMMAND: command_text(args.command, *words, plugins=plugins), **software()}
+
+
+def param_words(flag: str, items: Sequence[str] | None) -> list[str]:
+    """``flag KEY=VALUE`` for each sampler parameter, as a recorded command gives
+    them (a point-set file by absolute path: :func:`~mcrt.core.provenance.param_word`)."""
+    from ..core.provenance import param_word
+
+    return [w for item in items or [] for w in (flag, param_word(item))]

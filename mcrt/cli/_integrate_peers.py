@@ -139,7 +139,7 @@ def run_funcsamp(args: argparse.Namespace, samplers: list[str], out: Path) -> li
     return rows
 
 
-def run(args: argparse.Namespace, samplers: list[str], out: Path) -> int:
+def run(args: argparse.Namespace, samplers: list[str], out: Path, record: dict[str, str]) -> int:
     if args.integrand == "utk":
         rows = run_utk(args, samplers, out)
     else:
@@ -151,6 +151,6 @@ def run(args: argparse.Namespace, samplers: list[str], out: Path) -> int:
         writer.writeheader()
         writer.writerows(rows)
     write_json(stem.with_suffix(".json"), {"suite": args.integrand, "seed": args.seed,
-                                           "rows": rows})
+                                           "rows": rows, **record})
     print(f"wrote {stem.name}.csv and .json to {out}")
     return 0

@@ -72,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(table_lines(results)))
     print(verdict(results))
     if out is not None:
-        files = write_report(out, name, params, args.seed, args.quick, results, args.spp)
+        record = _common.recorded(args, name, *_common.param_words("-P", args.param),
+                                  *(["--quick"] if args.quick else []),
+                                  *(["--spp", args.spp] if args.spp else []), "--seed", args.seed)
+        files = write_report(out, name, params, args.seed, args.quick, results, args.spp,
+                             record)
         print(f"wrote {', '.join(files)} to {out}")
     return 1 if any(r.status == "FAIL" for r in results) else 0

@@ -105,8 +105,13 @@ def run(args: argparse.Namespace) -> int:
     with _common.removed_if_refused(target):  # a refused command leaves no folder
         out = ensure_writable_dir(target)
         _common.require_space(out, _common.PLOTS_BYTES, "the plots")
+    record = _common.recorded(args, args.integrand, "--sampler", ",".join(samplers),
+                              "--min-n", args.min_n, "--max-n", args.max_n,
+                              *(["--trials", args.trials] if args.trials is not None else []),
+                              "--integrands", args.integrands, "--budget", args.budget,
+                              "--seed", args.seed)
     if peer:
-        return _integrate_peers.run(args, samplers, out)
+        return _integrate_peers.run(args, samplers, out, record)
     if args.trials is None:
         args.trials = DEFAULT_TRIALS
     integrand = INTEGRANDS[args.integrand]
@@ -123,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         time_samplers(results.values(), rounds=3, seed=args.seed)
 
     _print_table(integrand, results)
-    _write_outputs(out, args, integrand, results)
+    _write_outputs(out, args, integrand, results, record)
     return 0
 
 
@@ -160,7 +165,7 @@ def _print_table(integrand, results) -> None:
         print(f"  {name:13s} MSE slope {fit.slope:+.3f} +- {fit.stderr_scaled:.3f}{chi2}{note}")
 
 
-def _write_outputs(out: Path, args, integrand, results) -> None:
+def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) -> None:
     import numpy as np
 
     from ..analysis import plots
@@ -187,7 +192,7 @@ def _write_outputs(out: Path, args, integrand, results) -> None:
                         "chi2_dof": fit.chi2_dof, "deterministic": conv.deterministic,
                         "skipped": [{"n": n, "reason": r} for n, r in conv.skipped]}
     summary = {"integrand": integrand.name, "exact": integrand.exact, "seed": args.seed,
-               "budget": args.budget, "max_trials": args.trials, "slopes": slopes}
+               "budget": args.budget, "max_trials": args.trials, "slopes": slopes, **record}
     write_json(stem.with_suffix(".json"), summary)
 
     fig = plots.new_figure(6.0, 4.5)

@@ -149,7 +149,11 @@ def run(args: argparse.Namespace) -> int:
     report = patterns.analyse_points(points, kmax=kmax, spectrum_sets=spectrum_sets,
                                      discrepancy_sets=discrepancy_sets)
     summary = {"sampler": name, "params": params, "spp_requested": args.spp,
-               "seed": args.seed, "dimension": args.dimension, **report.summary()}
+               "seed": args.seed, "dimension": args.dimension, **report.summary(),
+               **_common.recorded(args, name, "--spp", args.spp, "--pixels", args.pixels,
+                                  "--seed", args.seed, "--dimension", args.dimension,
+                                  *(["--kmax", args.kmax] if args.kmax else []),
+                                  *_common.param_words("--param", args.param))}
     _write_outputs(out, name, points, report, summary, args)
     _print_summary(summary, out)
     return 0
