@@ -77,7 +77,7 @@ def rel_mse(image: np.ndarray, reference: np.ndarray, epsilon: float = REL_MSE_E
 def reference_noise_floor(reference_standard_error: np.ndarray) -> float:
     """``mean(se^2)``: what the reference's own noise adds to the expected MSE
     of any independent render measured against it (over the pixels whose error
-    is known: NaN, a pixel without a finite sample, is left out)."""
+    is known: NaN, a pixel with fewer than two finite samples, is left out)."""
     se = np.asarray(reference_standard_error, dtype=np.float64)
     known = se[np.isfinite(se)]
     return float(np.mean(known ** 2)) if known.size else 0.0

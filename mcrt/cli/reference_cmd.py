@@ -118,13 +118,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _stderr_summary(stderr: np.ndarray) -> str:
     """``mean stderr X  max stderr Y`` over the pixels whose error is known (NaN:
-    no finite sample), and how many are not."""
+    fewer than two finite samples), and how many are not."""
     known = stderr[np.isfinite(stderr)]
     if known.size == 0:
-        return "stderr unknown (no finite samples)"
+        return "stderr unknown (no pixel has two finite samples)"
     unknown = int(np.count_nonzero(~np.isfinite(stderr).all(axis=-1)))
     return (f"mean stderr {float(np.mean(known)):.3g}  max stderr {float(np.max(known)):.3g}"
-            + (f"  ({unknown} pixels without a finite sample: stderr NaN)" if unknown else ""))
+            + (f"  ({unknown} pixels with fewer than two finite samples: stderr NaN)"
+               if unknown else ""))
 
 
 def _interrupted(stop: Interrupted, args: argparse.Namespace, params: dict[str, str],

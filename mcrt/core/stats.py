@@ -136,6 +136,7 @@ class PixelStats:
     @property
     def standard_error(self) -> np.ndarray:
         """Standard error of the pixel estimate, ``sqrt(variance / n)``; NaN (unknown)
-        where no sample was finite (n = 0: every sample NaN/Inf, left out)."""
-        unknown = (self.count == 0)[..., None]
+        where fewer than two samples were finite (NaN/Inf ones are left out): one
+        sample has no spread to estimate it from, and 0 would claim it exact."""
+        unknown = (self.count < 2)[..., None]
         return np.where(unknown, np.nan, np.sqrt(self.variance_of_mean))

@@ -66,6 +66,9 @@ def test_nonfinite_observations_are_counted_not_averaged():
     assert stats.nonfinite.tolist() == [[2, 1], [1, 1]]
     assert stats.count.tolist() == [[1, 2], [2, 2]]
     assert np.isfinite(stats.mean).all() and stats.mean[1, 1, 0] == 2.0
+    # One finite sample has no spread to estimate an error from: unknown, not 0.
+    se = stats.standard_error
+    assert np.isnan(se[0, 0]).all() and np.isfinite(se[stats.count >= 2]).all()
 
 
 def test_empty_side_of_a_merge_is_neutral():

@@ -47,8 +47,8 @@ def luminance_error_device(moments: Sequence[Any]) -> list[Any]:
     errors = []
     for m2 in m2s:  # PixelStats.variance, .variance_of_mean, .standard_error
         variance = dr.select(n > 1, m2 / dr.maximum(n - 1, 1), 0.0)
-        # NaN (unknown) where no sample was finite, as PixelStats.standard_error
-        errors.append(dr.select(n > 0, dr.sqrt(variance / dr.maximum(n, 1)), dr.nan))
+        # NaN (unknown) below two finite samples, as PixelStats.standard_error
+        errors.append(dr.select(n > 1, dr.sqrt(variance / dr.maximum(n, 1)), dr.nan))
     weights = [float(w) for w in LUMINANCE]
     return [(x[0] * weights[0] + x[1] * weights[1]) + x[2] * weights[2] for x in (means, errors)]
 
