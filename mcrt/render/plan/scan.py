@@ -160,7 +160,10 @@ def _scan_shape(scan: Scan, desc: SceneDescription, node: int, props: mi.Propert
     for j in emitters:
         if desc.nodes[j].props.plugin_name() == "area":
             scan.area_lights.append((node, j))
-    if not emitters:
+    # Mitsuba gives an emitting shape without a BSDF a black one; with one, it
+    # reflects light like any other shape.
+    has_bsdf = any(desc.nodes[j].type == mi.ObjectType.BSDF for _, j in children(desc, props))
+    if not emitters or has_bsdf:
         scan.reflecting_shapes += 1
         why = can_light_itself(desc, props)
         if why:
