@@ -5,8 +5,9 @@ Statistical comparisons are those of :mod:`tests.render.test_third_party_scenes`
 (the image mean of 4 renders with fixed seeds, its standard error from the
 per-pixel spread across those seeds with thousands of degrees of freedom; a
 difference of 5 SE has probability below 1e-6 under the null hypothesis). Each
-scene is 32x32 at 16 spp; the old failure this guards against is, scaled
-from a 64-spp sweep, about 18 SE away at these settings.
+scene is 32x32 at 16 spp; the old failures they guard against are, scaled
+from 64-spp sweeps, about 18 SE (an emitter's BSDF) and 180 SE (a cut-out)
+away at these settings.
 """
 
 from __future__ import annotations
@@ -51,3 +52,20 @@ def test_an_emitting_shape_with_a_bsdf_reflects_light_back(tmp_path):
     plan = plan_scene(grey).plan
     assert plan.on("indirect") and plan.integrator["type"] == "path"
     assert z_score(planned_mean(grey), mitsuba_mean(grey)) < 5
+
+
+def test_a_cut_out_under_a_point_light_keeps_the_scenes_path(tmp_path):
+    """A ``mask`` BSDF of opacity 0.5, alone under a point light: Mitsuba's path
+    renders it half as bright as its direct integrator (the plan's old choice), so
+    the plan keeps the scene's path and says why."""
+    path = scene_file(tmp_path, """
+      <emitter type="point"><point name="position" value="1,-2,3"/>
+        <rgb name="intensity" value="20"/></emitter>
+      <shape type="rectangle"><transform name="to_world"><scale value="1.5"/>
+        <rotate x="1" angle="70"/></transform>
+        <bsdf type="mask" id="leaf"><float name="opacity" value="0.5"/>
+          <bsdf type="diffuse"/></bsdf></shape>""")
+    plan = plan_scene(path).plan
+    assert plan.integrator == {"type": "path", "max_depth": -1}
+    assert plan.integrator_reason.startswith("cut-out BSDFs (leaf)")
+    assert z_score(planned_mean(path), mitsuba_mean(path)) < 5

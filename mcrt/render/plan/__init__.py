@@ -36,6 +36,9 @@ Then the plan chooses:
   ``direct`` with one emitter sample and a BSDF sample only when MIS needs one
   (glossy surfaces or emitters with area), so a scene lit by point lights
   draws film 2D + emitter 2D and nothing else;
+  but a ``path`` scene with a cut-out (a ``mask`` BSDF) keeps its ``path``:
+  Mitsuba's ``path`` and ``direct`` weight the light a cut-out reflects by its
+  opacity differently;
 * **camera**: as authored, or ``perspective`` when depth of field is off;
 * **shutter**: always closed in the rendered scene (Mitsuba's shapes ignore ray
   time, so a per-path time sample would be wasted); motion blur is rendered by

@@ -29,6 +29,9 @@ DEFAULT_ALPHA = 0.1
 ALWAYS_GLOSSY = {"principled", "principledthinfilm", "measured", "hair"}
 SPECULAR = {"conductor", "dielectric", "thindielectric", "plastic", "polarizer", "retarder"}
 DIELECTRIC = {"dielectric", "roughdielectric", "thindielectric"}
+#: BSDFs with a cut-out (a null lobe weighted by an opacity): Mitsuba's ``path``
+#: lights them otherwise than ``direct`` does (see :func:`.integrator.choose_integrator`).
+CUT_OUT = {"mask"}
 #: Emitters that light from an area (a BSDF sample helps them through MIS).
 EXTENDED_EMITTERS = {"area", "constant", "envmap", "sunsky", "directionalarea"}
 #: Shapes that cannot light themselves whatever their BSDF: flat ones.
@@ -71,6 +74,7 @@ class Scan:
     rough: list[RoughBSDF] = field(default_factory=list)
     specular: list[str] = field(default_factory=list)
     dielectric: bool = False
+    cut_outs: list[str] = field(default_factory=list)  # ids (else plugins) of mask BSDFs
     reflecting_shapes: int = 0
     #: Reflecting shapes one point of which may light another of the same shape
     #: (:func:`can_light_itself`), as "plugin (why)".
@@ -148,6 +152,8 @@ def _scan_bsdf(scan: Scan, node: int, props: mi.Properties) -> None:
     elif name in SPECULAR:
         scan.specular.append(name)
     scan.dielectric |= name in DIELECTRIC
+    if name in CUT_OUT:
+        scan.cut_outs.append(props.id() or name)
 
 
 def _scan_shape(scan: Scan, desc: SceneDescription, node: int, props: mi.Properties) -> None:
