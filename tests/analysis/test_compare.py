@@ -470,3 +470,20 @@ def test_a_black_scene_is_studied_to_the_end(tmp_path):
     assert len(data["cells"]) == 4
     assert all(cell["mse"] == 0 and cell["delta_e"] == 0 for cell in data["cells"])
     assert (tmp_path / "out" / "report.html").stat().st_size > 0
+
+
+def test_a_config_s_files_are_found_from_any_folder(tmp_path, monkeypatch):
+    """A sampler's point-set file (``params.filename``) is relative to the
+    configuration's folder, as its scenes and plugins are, and the recorded
+    ``config_path`` is absolute: a study run from another folder finds both."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    (folder / "s.toml").write_text(
+        'name = "s"\nspp = [4, 16]\nseeds = 2\n'
+        'samplers = ["jittered", {name = "pointset", params = { filename = "sets.npz" }}]\n'
+        f'[reference]\nspp = 64\n[[scenes]]\npath = "{CHECKERBOARD}"\n')
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    config = load_config(Path("../cfg/s.toml"), check_scenes=False)
+    assert config.samplers[1].params == {"filename": str(folder.resolve() / "sets.npz")}
+    assert config.as_dict()["config_path"] == str(folder.resolve() / "s.toml")

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ...core.provenance import FILE_PARAMS
 from ...errors import McrtError
 from ...plugins import file_digest
 
@@ -128,7 +129,7 @@ class StudyConfig:
     def as_dict(self) -> dict[str, Any]:
         return {
             "name": self.name, "description": self.description,
-            "config_path": str(self.path) if self.path else None,
+            "config_path": str(self.path.resolve()) if self.path else None,  # any folder
             "spp": list(self.spp), "seeds": list(self.seeds), "image_spp": self.image_spp,
             "aliasing_draws": self.aliasing_draws, "baseline": self.baseline,
             "time_rounds": self.rounds,
@@ -236,7 +237,7 @@ def parse_config(data: dict[str, Any], base_dir: Path | None = None, name: str =
         raise ConfigError(f"image_spp ({image_spp}) must be one of spp {list(spp)}")
     draws = _int(data.get("aliasing_draws", STUDY_NULL_DRAWS), "aliasing_draws", 2, 100001)
     plugins = _load_plugins(data.get("plugins"), base_dir)  # before any sampler name is checked
-    samplers = _parse_samplers(data["samplers"])
+    samplers = _parse_samplers(data["samplers"], base_dir)
     reference = _parse_reference(data["reference"], max(spp))
     filters = _parse_filters(data.get("filters"))
     scenes = _with_filters(_parse_scenes(data["scenes"], base_dir), filters)
@@ -317,15 +318,16 @@ def _parse_seeds(value: Any) -> tuple[int, ...]:
     return seeds
 
 
-def _parse_samplers(value: Any) -> tuple[SamplerSpec, ...]:
+def _parse_samplers(value: Any, base_dir: Path) -> tuple[SamplerSpec, ...]:
     if not isinstance(value, list) or not value:
         raise ConfigError("samplers must be a non-empty list of names or tables")
-    samplers = tuple(_parse_sampler(item, f"samplers[{i}]") for i, item in enumerate(value))
+    samplers = tuple(_parse_sampler(item, f"samplers[{i}]", base_dir)
+                     for i, item in enumerate(value))
     _unique([s.label for s in samplers], "sampler label", "label")
     return samplers
 
 
-def _parse_sampler(item: Any, where: str) -> SamplerSpec:
+def _parse_sampler(item: Any, where: str, base_dir: Path) -> SamplerSpec:
     if isinstance(item, str):
         item = {"name": item}
     if not isinstance(item, dict):
@@ -344,6 +346,9 @@ def _parse_sampler(item: Any, where: str) -> SamplerSpec:
     label = _str(item.get("label", sampler), f"{where}.label")
     if any(c in label for c in _BAD_NAME_CHARS):
         raise ConfigError(f"{where}.label {label!r}: use letters, digits, '.', '-', '_'")
+    for key in FILE_PARAMS:  # a point-set file: relative to the configuration's folder,
+        if isinstance(params.get(key), str) and params[key]:  # as scenes and plugins are
+            params[key] = str((base_dir / params[key]).resolve())
     return SamplerSpec(sampler, label, params)
 
 
