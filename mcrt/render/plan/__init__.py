@@ -37,8 +37,9 @@ Then the plan chooses:
   (glossy surfaces or emitters with area), so a scene lit by point lights
   draws film 2D + emitter 2D and nothing else;
   but a ``path`` scene with a cut-out (a ``mask`` BSDF) keeps its ``path``:
-  Mitsuba's ``path`` and ``direct`` weight the light a cut-out reflects by its
-  opacity differently;
+  Mitsuba 3.9's ``path`` weights the sampled light a cut-out reflects by its
+  opacity twice, a bias the plan keeps so the image is ``mi.render``'s and says
+  so (docs/mask-path-bias.md);
 * **camera**: as authored, or ``perspective`` when depth of field is off;
 * **shutter**: always closed in the rendered scene (Mitsuba's shapes ignore ray
   time, so a per-path time sample would be wasted); motion blur is rendered by

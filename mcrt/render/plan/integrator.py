@@ -64,17 +64,18 @@ def _indirect(author: AuthoredIntegrator) -> tuple[IntegratorSpec, str]:
 
 
 def _cut_out_path(facts: ScanFacts, author: AuthoredIntegrator) -> tuple[IntegratorSpec, str]:
-    """The scene's ``path``, at its depth: Mitsuba's ``path`` weights the light a
-    cut-out (``mask``) reflects by its opacity twice where ``direct`` (and
-    ``distribution``) weight it once (measured with Mitsuba 3.9: opacity 0.5 under
-    a point light, path renders half of direct), so no shorter integrator renders
-    the scene's image."""
+    """The scene's ``path``, at its depth: Mitsuba 3.9's ``path`` weights the light
+    a cut-out (``mask``) reflects from a sampled emitter by its opacity twice, a
+    bias (``direct``, ``prb`` and ``distribution`` weight it once, the analytic
+    value: docs/mask-path-bias.md), so no shorter integrator renders the image
+    ``mi.render`` gives; the reason says so."""
     spec: IntegratorSpec = {"type": "path", "max_depth": author.max_depth}
     if "rr_depth" in author.props:
         spec["rr_depth"] = integer(author.props, "rr_depth")
     masks = ", ".join(facts.scan.cut_outs)
-    return spec, (f"cut-out BSDFs ({masks}): Mitsuba's path lights them otherwise than "
-                  f"direct lighting does, so the scene's path is kept")
+    return spec, (f"cut-out BSDFs ({masks}): the scene's path is kept, so the image is "
+                  f"mi.render's, which Mitsuba 3.9's path makes too dark there (opacity^2 "
+                  f"in place of opacity for sampled light: docs/mask-path-bias.md)")
 
 
 def _distribution(facts: ScanFacts, d: Decisions, bounce: int) -> tuple[IntegratorSpec, str]:
