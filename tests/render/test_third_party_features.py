@@ -96,3 +96,19 @@ def test_mitsubas_path_renders_a_cut_out_at_opacity_squared():
         assert abs(ratio["direct"] - 1) < 0.005 and abs(ratio["prb"] - 1) < 0.005, ratio
         sd = np.sqrt(opacity * (1 - opacity) / (res * res * spp))
         assert abs(ratio["path"] - opacity) < 6 * sd, (ratio, sd)
+
+
+def test_a_cut_out_in_a_scene_with_indirect_light_is_flagged_too(tmp_path):
+    """Indirect light renders with path anyway: the note still names the cut-out
+    and the bias, so the image is not taken for the right one."""
+    path = scene_file(tmp_path, BALL + """
+      <emitter type="point"><point name="position" value="1,-2,3"/>
+        <rgb name="intensity" value="20"/></emitter>
+      <shape type="rectangle"><transform name="to_world"><scale value="3"/>
+        <translate z="-1"/></transform>
+        <bsdf type="mask" id="grille"><float name="opacity" value="0.5"/>
+          <bsdf type="diffuse"/></bsdf></shape>""")
+    plan = plan_scene(path).plan
+    assert plan.on("indirect") and plan.integrator["type"] == "path"
+    assert plan.integrator_reason.startswith("indirect light; cut-out BSDFs (grille)")
+    assert "docs/mask-path-bias.md" in plan.integrator_reason

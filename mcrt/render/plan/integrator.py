@@ -25,6 +25,8 @@ def choose_integrator(facts: ScanFacts, author: AuthoredIntegrator,
         spec, reason = _cut_out_path(facts, author)
     elif d.on("indirect"):
         spec, reason = _indirect(author)
+        if facts.scan.cut_outs:  # path all the same: the image is mi.render's, said so
+            reason += f"; {_cut_out_bias(facts)}"
     elif bounce:
         spec, reason = _distribution(facts, d, bounce)
     else:
@@ -72,10 +74,14 @@ def _cut_out_path(facts: ScanFacts, author: AuthoredIntegrator) -> tuple[Integra
     spec: IntegratorSpec = {"type": "path", "max_depth": author.max_depth}
     if "rr_depth" in author.props:
         spec["rr_depth"] = integer(author.props, "rr_depth")
+    return spec, _cut_out_bias(facts, "the scene's path is kept, so ")
+
+
+def _cut_out_bias(facts: ScanFacts, kept: str = "") -> str:
     masks = ", ".join(facts.scan.cut_outs)
-    return spec, (f"cut-out BSDFs ({masks}): the scene's path is kept, so the image is "
-                  f"mi.render's, which Mitsuba 3.9's path makes too dark there (opacity^2 "
-                  f"in place of opacity for sampled light: docs/mask-path-bias.md)")
+    return (f"cut-out BSDFs ({masks}): {kept}the image is mi.render's, which Mitsuba 3.9's "
+            f"path makes too dark there (opacity^2 in place of opacity for sampled light: "
+            f"docs/mask-path-bias.md)")
 
 
 def _distribution(facts: ScanFacts, d: Decisions, bounce: int) -> tuple[IntegratorSpec, str]:
