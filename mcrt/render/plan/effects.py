@@ -21,7 +21,14 @@ from ..scene import SceneDescription
 from .camera import CameraModel, circle_of_confusion, streak_px
 from .model import EFFECTS, Effect
 from .nodes import scalar
-from .scan import VOLUMETRIC, AuthoredIntegrator, RoughBSDF, Scan, environment_emitters
+from .scan import (
+    DELTA_EMITTERS,
+    VOLUMETRIC,
+    AuthoredIntegrator,
+    RoughBSDF,
+    Scan,
+    environment_emitters,
+)
 
 #: Depth of field is negligible when no visible depth blurs by this many pixels.
 DOF_NEGLIGIBLE_PX = 0.5
@@ -168,11 +175,19 @@ def _describe_rough(facts: ScanFacts, bsdf: RoughBSDF) -> str:
 
 def decide_glossy(d: Decisions, facts: ScanFacts) -> None:
     rough = facts.scan.rough
-    smooth = [b for b in rough if b.alpha is not None and b.alpha < GLOSSY_MIN_ALPHA]
+    # Under a point, spot or directional light a nearly smooth BSDF still shows the
+    # light's highlight, a tiny bright spot a smooth one cannot (delta meets delta).
+    delta = sorted({k for k in facts.scan.emitter_kinds if k in DELTA_EMITTERS})
+    smooth = [] if delta else [b for b in rough
+                               if b.alpha is not None and b.alpha < GLOSSY_MIN_ALPHA]
     glossy = any(b.alpha is None or b.alpha >= GLOSSY_MIN_ALPHA for b in rough)
     desc = ", ".join(_describe_rough(facts, b) for b in rough)
     if glossy:
         reason = f"rough BSDFs: {desc}"
+    elif rough and delta:
+        glossy = True
+        reason = (f"roughness below {GLOSSY_MIN_ALPHA:g}, kept rough: {', '.join(delta)} "
+                  f"lights make a highlight a smooth BSDF loses: {desc}")
     elif rough:
         reason = f"roughness below {GLOSSY_MIN_ALPHA:g}: {desc}"
     else:

@@ -34,6 +34,9 @@ DIELECTRIC = {"dielectric", "roughdielectric", "thindielectric"}
 CUT_OUT = {"mask"}
 #: Emitters that light from an area (a BSDF sample helps them through MIS).
 EXTENDED_EMITTERS = {"area", "constant", "envmap", "sunsky", "directionalarea"}
+#: Emitters of a single position or direction: the highlight a nearly smooth rough
+#: BSDF shows of one is lost when the BSDF is made smooth (delta meets delta).
+DELTA_EMITTERS = {"point", "spot", "directional", "projector"}
 #: Shapes that cannot light themselves whatever their BSDF: flat ones.
 FLAT_SHAPES = {"rectangle", "disk"}
 #: Closed convex shapes: with outward normals and a one-sided opaque BSDF only their
