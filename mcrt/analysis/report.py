@@ -92,6 +92,7 @@ def results_json(result: StudyResult) -> dict[str, Any]:
     """Everything a study measured, as JSON-ready data."""
     return json_safe({
         "partial": result.partial,
+        "command": result.command,
         "progress": result.progress(),
         "study": result.config.as_dict(),
         "environment": result.environment,

@@ -91,6 +91,15 @@ def resume_command(args: argparse.Namespace, out: Path) -> str:
     return shlex.join(["mcrt", *quiet, *given, "compare", str(args.config), "-o", str(out)])
 
 
+def _study_command(args: argparse.Namespace) -> str:
+    """``mcrt --variant V [--plugin FILE]... compare CONFIG``, the configuration
+    and plugin files by absolute path: what results.json records, to run the
+    study again from any folder (into its default output, or ``-o`` added)."""
+    from ..core.provenance import COMMAND
+
+    return _common.recorded(args, str(Path(args.config).resolve()))[COMMAND]
+
+
 def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)  # every input error surfaces here, before rendering
     if args.check:
@@ -138,6 +147,7 @@ def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> 
             raise McrtError(f"{error} ({len(state.cells)} finished cells are saved in "
                             f"{state.directory}; the same command resumes)") from None
         raise
+    result.command = _study_command(args)
     try:
         files = write_report(result, out)
     except KeyboardInterrupt:  # every cell is measured and saved: only the report is missing
@@ -196,6 +206,7 @@ def _write_partial(result: StudyResult, args: argparse.Namespace, out: Path) -> 
     """
     command = resume_command(args, out)
     result.resume_command = command
+    result.command = _study_command(args)
     done, total = len(result.cells), result.config.cells
     try:
         write_report(result, out)

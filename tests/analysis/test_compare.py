@@ -158,6 +158,9 @@ def test_a_film_under_32_pixels_is_studied_without_an_aliasing_score(tmp_path, c
     assert code == 0 and "renders 24x16 pixels: its cells get no aliasing score (n/a" in err
     data = json.loads((tmp_path / "out" / "results.json").read_text())
     assert len(data["cells"]) == 4
+    # results.json says how to run the study again, from any folder
+    assert data["command"].split() == ["mcrt", "--variant", "llvm_ad_rgb", "compare",
+                                       str(path.resolve())]
     for cell in data["cells"]:
         assert cell["aliasing"] == "n/a" and cell["mse"] > 0 and cell["delta_e"] > 0
         assert cell["aliasing_ratio"] is None or math.isnan(cell["aliasing_ratio"])

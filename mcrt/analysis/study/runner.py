@@ -77,6 +77,9 @@ class StudyResult:
     resumed_cells: int = 0
     #: how to resume a partial study (set by the command line)
     resume_command: str | None = None
+    #: the command line that runs the study again from any folder (set by the
+    #: command line; results.json records it)
+    command: str | None = None
     #: every measured cell's images (mean, first seed, variance), keyed like
     #: :meth:`cell`: (scene, sampler label, spp requested)
     renders: dict[tuple[str, str, int], CellRenders] = field(default_factory=dict)
