@@ -11,6 +11,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mcrt
 from mcrt.core.trace import pixel_of_index, trace
 from mcrt.errors import McrtError, SceneError
 from mcrt.io import read_exr
@@ -60,31 +61,39 @@ def test_every_effect_scene_is_shipped():
 CALLS: list[int] = []  # ndim of each sampler call as it is traced (outside loop state)
 
 
-class CountingSampler(JitteredSampler):
-    """``jittered`` that counts its calls per lane (n1, n2 are Dr.Jit loop state)."""
+def counting_sampler(base: type) -> type:
+    """``base`` (``jittered`` of the active variant) counting its calls per lane
+    (n1, n2 are Dr.Jit loop state)."""
 
-    plugin_name = "counting_jittered"
+    class CountingSampler(base):  # type: ignore[misc, valid-type]
+        plugin_name = "counting_jittered"
 
-    def _configure(self, props: mi.Properties) -> None:
-        super()._configure(props)
-        self.n1 = mi.UInt32(0)
-        self.n2 = mi.UInt32(0)
+        def _configure(self, props: mi.Properties) -> None:
+            super()._configure(props)
+            self.n1 = mi.UInt32(0)
+            self.n2 = mi.UInt32(0)
 
-    def next_1d(self, active=True):
-        CALLS.append(1)
-        self.n1 = self.n1 + 1
-        return super().next_1d(active)
+        def next_1d(self, active=True):
+            CALLS.append(1)
+            self.n1 = self.n1 + 1
+            return super().next_1d(active)
 
-    def next_2d(self, active=True):
-        CALLS.append(2)
-        self.n2 = self.n2 + 1
-        return super().next_2d(active)
+        def next_2d(self, active=True):
+            CALLS.append(2)
+            self.n2 = self.n2 + 1
+            return super().next_2d(active)
+
+    return CountingSampler
 
 
-def count_calls(scene: mi.Scene, spp: int = 4) -> tuple[list[int], int, int]:
+CountingSampler = counting_sampler(JitteredSampler)
+
+
+def count_calls(scene: mi.Scene, spp: int = 4,
+                counting: type = CountingSampler) -> tuple[list[int], int, int]:
     """Trace one wavefront of every pixel; return the traced call order and the
     largest per-lane numbers of 1D and 2D calls."""
-    mi.register_sampler("counting_jittered", lambda props: CountingSampler(props))
+    mi.register_sampler("counting_jittered", lambda props: counting(props))
     sampler = mi.load_dict({"type": "counting_jittered", "sample_count": spp})
     sensor = scene.sensors()[0]
     size = sensor.film().crop_size()
@@ -128,6 +137,32 @@ def test_dimension_layout_matches_counted_sampler_calls(scene, params, spp):
     assert n2 == per_step.count(2) * steps + camera.count(2)
     if plan.on("motion"):  # time comes from sub-frames, never from a per-path dimension
         assert plan_scene(scene, params).scene.sensors()[0].shutter_open_time() == 0
+
+
+@pytest.mark.parametrize("scene, params", [
+    (CHECKERBOARD, {"width": "16", "height": "12"}),
+    (EFFECT_SCENES / "dof.xml", {"width": "16", "height": "12"}),
+])
+def test_spectral_plan_lists_the_wavelength_sample(scene, params):
+    """A spectral variant's camera draws the wavelengths (1D) after the film and
+    lens samples (mcrt.core.trace): the plan lists them there, and its layout and
+    maximum counts match the calls traced (counted, no statistics involved)."""
+    mi.set_variant("llvm_ad_spectral")
+    mcrt.register()
+    from mcrt.samplers import PLUGINS
+
+    planned = plan_scene(scene, params)
+    labels = [d.label for d in planned.plan.camera_dimensions()]
+    assert labels[-1] == "wavelength" and labels[0] == "film"
+    assert "wavelength 1D" in planned.plan.describe()
+    camera = [d.ndim for d in planned.plan.camera_dimensions()]
+    per_step, steps = planned.plan.bounce_dimensions()
+    per_step = [d.ndim for d in per_step]
+    calls, n1, n2 = count_calls(planned.scene, 4, counting_sampler(PLUGINS["jittered"]))
+    assert calls == camera + per_step  # both scenes: the direct integrator, one step
+    assert steps == 1
+    assert n1 == per_step.count(1) + camera.count(1)
+    assert n2 == per_step.count(2) + camera.count(2)
 
 
 # ----------------------------------------------------------------------------

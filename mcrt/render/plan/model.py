@@ -78,6 +78,7 @@ class RenderPlan:
     subframe_times: list[float] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     aperture_sample: bool = False       # the rendered sensor draws a 2D aperture sample
+    wavelength_sample: bool = False     # a spectral variant draws the wavelengths (1D)
 
     # -- queries --------------------------------------------------------------
     def on(self, effect: str) -> bool:
@@ -102,7 +103,10 @@ class RenderPlan:
         dims = [Dimension("film", 2)]
         if self.aperture_sample:  # a thin lens's; an irradiance meter's direction
             dims.append(Dimension("lens" if self.camera == "thinlens" else "aperture", 2))
-        return dims  # the rendered shutter is closed: no per-path time sample
+        # the rendered shutter is closed: no per-path time sample
+        if self.wavelength_sample:  # spectral variants, after the aperture (core/trace.py)
+            dims.append(Dimension("wavelength", 1))
+        return dims
 
     def bounce_dimensions(self) -> tuple[list[Dimension], int | None]:
         """Sampler calls per integrator step and the number of steps (None:

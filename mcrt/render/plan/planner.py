@@ -75,7 +75,8 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
         motions=decisions.motions,
         streak_px=streak if math.isfinite(streak) else float(spp) * step_px,
         coc_px=decisions.coc_px, notes=notes,
-        aperture_sample=bool(scene.sensors()[0].needs_aperture_sample()))
+        aperture_sample=bool(scene.sensors()[0].needs_aperture_sample()),
+        wavelength_sample=bool(mi.is_spectral))
     planned = PlannedScene(plan, scene, decisions.motions, step_px)
     planned.plan.subframes = planned.subframes_for(plan.spp)
     return planned
