@@ -98,6 +98,20 @@ def test_bad_configs_fail_before_rendering_with_one_line(tmp_path, capsys, chang
     assert not (tmp_path / "out" / "results.csv").exists()
 
 
+@pytest.mark.parametrize("variant", ["llvm_ad_mono", "llvm_ad_mono_polarized"])
+def test_a_monochrome_variant_is_refused_naming_the_variant(tmp_path, capsys, variant):
+    """A monochrome variant develops luminance whatever the film's pixel_format says
+    (the checkerboard's is rgb), so the one-line refusal names the variant and does
+    not ask for a pixel_format the film already has."""
+    code = main(["-q", "--variant", variant, "compare", str(_config(tmp_path, GOOD)),
+                 "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert f"the {variant} variant develops luminance only" in err
+    assert "llvm_ad_rgb" in err and "pixel_format" not in err
+    assert not (tmp_path / "out" / "results.csv").exists()
+
+
 def test_a_scene_without_box_filter_is_accepted(tmp_path):
     """References develop with the film's own filter: no refusal."""
     scene = tmp_path / "gaussian.xml"

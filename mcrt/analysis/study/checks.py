@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 
+import mitsuba as mi
+
 from ...errors import McrtError
 from ..aliasing import MIN_SIZE, measurable
 from .config import ConfigError, SceneSpec, StudyConfig
@@ -43,6 +45,10 @@ def _check_scene(spec: SceneSpec) -> int:
         raise ConfigError(f"scene {spec.name!r}: {error}") from None
     film = scene.sensors()[0].film()  # any filter: references develop with the film's own
     channels = film_base_channels(film)
+    if channels[:1] == ["Y"] and mi.is_monochromatic:  # pixel_format rgb would change nothing
+        raise ConfigError(f"scene {spec.name!r}: the {mi.variant()} variant develops luminance "
+                          f"only; the study measures colour errors against an RGB reference: "
+                          f"run it in an RGB or spectral variant (e.g. llvm_ad_rgb)")
     if channels[:1] == ["Y"]:
         raise ConfigError(f"scene {spec.name!r}: the film stores luminance only (channels "
                           f"{' '.join(channels)}); the study measures colour errors against "
