@@ -163,11 +163,8 @@ def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> 
     _print_summary(result)
     for line in bias_lines(result.cells):
         print(f"bias: {line}")
-    from ..plugins import command_words
-
-    plugins = command_words(getattr(args, "plugin_files", None) or [])
-    retime = shlex.join(["mcrt", *plugins, "compare", str(args.config), "-o", str(out),
-                         "--retime"])
+    # The resume command's variant and plugins: the saved cells are the variant's own.
+    retime = f"{resume_command(args, out)} --retime"
     for line in timing_lines(result.timing, retime):
         print(f"timing: {line}")
     resumed = (f" ({result.resumed_cells} of {config.cells} cells from the saved state)"

@@ -343,6 +343,38 @@ def test_retime_times_the_saved_cells_again_and_keeps_their_errors(study, tmp_pa
     assert code == 2 and "use one of the two" in err
 
 
+def test_the_retime_command_printed_runs_in_the_study_s_variant(tmp_path, monkeypatch, capsys):
+    """The command a disturbed timing tells the user to run (`... --retime`) is run as
+    printed and times the saved cells again: it names the study's variant, as the
+    resume command does (without it, it ran in llvm_ad_rgb and refused: '0 of 4 are
+    saved'). The line is printed only under load, so the command is taken from the
+    real timing_lines as the CLI calls it (a spy that calls through)."""
+    import shlex
+
+    import mcrt.cli.compare_cmd as compare_cmd
+
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    config = _write(tmp_path / "study.toml",
+                    study_toml(CHECKERBOARD, params="{ width = 16, height = 12 }"))
+    out = tmp_path / "report"
+    printed: list[str] = []
+    real = compare_cmd.timing_lines
+
+    def spy(timing, retime=""):
+        printed.append(retime)
+        return real(timing, retime)
+
+    monkeypatch.setattr(compare_cmd, "timing_lines", spy)
+    code, _, err = _run(capsys, "-q", "--variant", "llvm_ad_spectral", "compare", str(config),
+                        "-o", str(out))
+    assert code == 0, err
+    words = shlex.split(printed[-1])
+    assert words[0] == "mcrt" and words[-1] == "--retime"
+    assert "--variant" in words and words[words.index("--variant") + 1] == "llvm_ad_spectral"
+    code, _, err = _run(capsys, *words[1:])
+    assert code == 0, err
+
+
 def test_interrupt_while_the_report_is_written_says_how_to_write_it(study, tmp_path,
                                                                     monkeypatch, capsys):
     """Ctrl-C after the last cell, while the report is written: the cells are
