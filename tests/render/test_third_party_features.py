@@ -47,6 +47,9 @@ def test_an_emitting_shape_with_a_bsdf_reflects_light_back(tmp_path):
     leaves out, 4% of the image."""
     black = scene_file(tmp_path, BALL + emitting_panel(""))
     assert not plan_scene(black).plan.on("indirect")  # nothing to light the ball again
+    black = scene_file(tmp_path, BALL + emitting_panel(  # a black BSDF given explicitly
+        '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>'))
+    assert not plan_scene(black).plan.on("indirect")
     grey = scene_file(tmp_path, BALL + emitting_panel(
         '<bsdf type="diffuse"><rgb name="reflectance" value="0.9"/></bsdf>'))
     plan = plan_scene(grey).plan

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import mitsuba as mi
 
@@ -169,14 +169,29 @@ def _scan_shape(scan: Scan, desc: SceneDescription, node: int, props: mi.Propert
     for j in emitters:
         if desc.nodes[j].props.plugin_name() == "area":
             scan.area_lights.append((node, j))
-    # Mitsuba gives an emitting shape without a BSDF a black one; with one, it
-    # reflects light like any other shape.
-    has_bsdf = any(desc.nodes[j].type == mi.ObjectType.BSDF for _, j in children(desc, props))
+    # Mitsuba gives an emitting shape without a BSDF a black one; with one (not
+    # black itself), it reflects light like any other shape.
+    has_bsdf = any(desc.nodes[j].type == mi.ObjectType.BSDF and not _black(desc.nodes[j].props)
+                   for _, j in children(desc, props))
     if not emitters or has_bsdf:
         scan.reflecting_shapes += 1
         why = can_light_itself(desc, props)
         if why:
             scan.self_lighting.append(f"{props.id() or name} ({why})")
+
+
+def _black(bsdf: mi.Properties) -> bool:
+    """A ``diffuse`` BSDF of constant reflectance 0 (an emitter's explicit black
+    BSDF): it reflects nothing."""
+    if bsdf.plugin_name() != "diffuse" or "reflectance" not in bsdf:
+        return False
+    value: Any = bsdf["reflectance"]
+    if isinstance(value, int | float):
+        return value == 0
+    try:
+        return all(float(c) == 0 for c in value)
+    except TypeError:  # a texture: not known to be black
+        return False
 
 
 def can_light_itself(desc: SceneDescription, props: mi.Properties) -> str:
