@@ -5,7 +5,9 @@ A job's tasks receive their scene as a :class:`~mcrt.core.scene_files.SceneSourc
 cluster worker); :func:`planned_scene` plans it (:func:`~mcrt.render.plan.plan_scene`)
 the first time and returns the same :class:`~mcrt.render.plan.PlannedScene` to
 the job's later tasks, keyed by the scene's content digest and parameters (a
-changed file is a new scene). The few most recent scenes are kept.
+changed file is a new scene) and the Mitsuba variant (a scene of another variant
+is another scene: its objects are that variant's classes). The few most recent
+scenes are kept.
 
 It is also the one place a client plans a scene it was given by path (the study's
 checks, its references, its cells and its report's headers all ask it), so a
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mitsuba as mi
 import numpy as np
 
 from ..core.render import render_film_pass
@@ -37,7 +40,7 @@ _planned: OrderedDict[tuple, PlannedScene] = OrderedDict()
 
 def _key(path: str | Path, digest: str, params: dict[str, str] | None,
          overrides: dict[str, bool] | None = None, wrap: str | None = None) -> tuple:
-    return (digest, str(path), tuple(sorted((params or {}).items())),
+    return (mi.variant(), digest, str(path), tuple(sorted((params or {}).items())),
             tuple(sorted((overrides or {}).items())), wrap)
 
 

@@ -48,6 +48,30 @@ def test_a_scene_is_planned_once_until_its_file_changes(tmp_path, monkeypatch):
     assert loaded.planned_scene(scene, params) is edited and counts[str(scene)] == 3
 
 
+def test_a_scene_planned_in_another_variant_is_planned_again(monkeypatch):
+    """A process that switches variants (the Python API, a worker of studies in
+    two variants) gets the scene of the variant it renders in: one kept from
+    another variant holds that variant's classes (an RGB scene's integrator is
+    no sampling integrator of llvm_ad_mono, and a study refused it so)."""
+    import mitsuba as mi
+
+    import mcrt
+
+    counts = count_plans(monkeypatch)
+    params = {"width": "16", "height": "12"}
+    rgb = loaded.planned_scene(CHECKERBOARD, params)
+    try:
+        mi.set_variant("llvm_ad_mono")
+        mcrt.register()
+        mono = loaded.planned_scene(CHECKERBOARD, params)
+        assert mono is not rgb and counts[str(CHECKERBOARD.resolve())] == 2
+        assert isinstance(mono.scene.integrator(), mi.SamplingIntegrator)
+    finally:
+        mi.set_variant("llvm_ad_rgb")
+        mcrt.register()
+    assert loaded.planned_scene(CHECKERBOARD, params) is rgb  # still kept for its variant
+
+
 def test_a_missing_scene_gets_the_planners_error(tmp_path):
     with pytest.raises(SceneError, match="scene file not found"):
         loaded.planned_scene(tmp_path / "gone.xml")
