@@ -73,6 +73,8 @@ _LOADED: dict[Path, types.ModuleType] = {}
 _NAMES: dict[Path, tuple[str, ...]] = {}
 #: The variant each file was last executed in (its classes derive from it).
 _VARIANTS: dict[Path, str] = {}
+#: SHA-256 of the bytes each loaded file ran (what a worker must run too).
+_DIGESTS: dict[Path, str] = {}
 #: Entry points loaded (by ``name = value``) and the names each registered.
 _ENTRY_POINTS: dict[str, tuple[str, ...]] = {}
 #: Whether this process has looked for entry points.
@@ -162,6 +164,7 @@ def unload_plugin(path: str | os.PathLike[str]) -> None:
             registry.unregister(name)
     del _LOADED[resolved]
     _VARIANTS.pop(resolved, None)
+    _DIGESTS.pop(resolved, None)
     sys.modules.pop(module_name(resolved), None)
 
 
@@ -206,6 +209,7 @@ def _execute(path: Path) -> types.ModuleType:
     _LOADED[path] = module
     _NAMES[path] = tuple(dict.fromkeys(names))
     _VARIANTS[path] = mi.variant() or ""
+    _DIGESTS[path] = hashlib.sha256(source).hexdigest()
     return module
 
 
@@ -358,7 +362,7 @@ def state_key() -> tuple:
     """Changes whenever :func:`worker_state` would (cheap: no pickling)."""
     users = tuple((n, registry.info(n).origin, id(_class_or_none(n)))
                   for n in registry.names() if registry.info(n).kind in ("user", "points"))
-    return tuple(_LOADED), _entry_points_loaded, users
+    return tuple((p, _DIGESTS.get(p, "")) for p in _LOADED), _entry_points_loaded, users
 
 
 def _class_or_none(name: str) -> type | None:
@@ -371,8 +375,8 @@ def _class_or_none(name: str) -> type | None:
 def worker_state() -> dict[str, Any]:
     """What a Dask worker needs to know the samplers this process knows:
 
-    * the plugin files loaded here (a worker loads the same files: it must see
-      them at the same paths, as with a shared file system);
+    * the plugin files loaded here, with their code's digests (a worker loads the same
+      files: it must see them at the same paths, as with a shared file system);
     * whether the entry points were loaded (a worker loads its own);
     * every sampler registered here without a plugin file: a generator
       (``register_sampler(points=fn)``, sent by value with cloudpickle), a point
@@ -397,7 +401,7 @@ def worker_state() -> dict[str, Any]:
                 f"{' '.join(str(error).split())}); put its mcrt.register_sampler call in a "
                 f"plugin file and load it with --plugin FILE.py (or plugins = [...] in a "
                 f"study, or mcrt.plugins.load_plugin)")
-    return {"files": [str(p) for p in _LOADED], "entry_points": _entry_points_loaded,
+    return {"files": {str(p): _DIGESTS[p] for p in _LOADED}, "entry_points": _entry_points_loaded,
             "shipped": shipped, "unavailable": missing}
 
 
@@ -445,10 +449,20 @@ def install_worker_state(state: dict[str, Any]) -> None:
     """On a Dask worker (after ``mcrt.register()``): load the client's plugin
     files and entry points and repeat its other registrations. Never raises:
     what fails is recorded, and the error shows when a task asks for a sampler
-    it lacks (:func:`unavailable`)."""
-    for file in state.get("files", ()):
+    it lacks (:func:`unavailable`). A file loaded by an earlier command (workers
+    outlive commands) whose code is not the client's runs again; other code than the
+    client ran (a file edited since) is unloaded, never run."""
+    for file, want in dict(state.get("files", {})).items():
         try:
+            if want and _DIGESTS.get(_resolve(file), want) != want:
+                unload_plugin(file)  # an older version: run the file again
             load_plugin(file)
+            if want and (have := _DIGESTS[_resolve(file)]) != want:
+                unload_plugin(file)
+                raise PluginError(f"plugin {file} on this worker is not the code the client "
+                                  f"loaded (sha256 {have[:12]}, the client's {want[:12]}): "
+                                  f"edited since, or another copy; workers must see the same file")
+            _FAILED.pop(file, None)
         except SamplerError as error:
             _FAILED[file] = str(error)
     if state.get("entry_points"):

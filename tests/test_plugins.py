@@ -455,6 +455,47 @@ def test_what_a_worker_gets_of_this_processes_samplers(tmp_path):
         check_sampler_name("locked")
 
 
+@pytest.mark.slow
+def test_workers_that_outlive_a_command_run_the_edited_plugin(tmp_path):
+    """Workers of an external cluster outlive commands: after the plugin file
+    was edited (and loaded again here), they run its new code, not the code they
+    loaded for an earlier command; a worker that reads other code than the client
+    ran (a restarted worker, the file edited once more) refuses it in one line."""
+    pytest.importorskip("distributed")
+    from mcrt.analysis.reference import get_reference
+    from mcrt.core.cluster import DaskExecutor
+    from tests.conftest import same_stats
+
+    plugin = write_plugin(tmp_path, GENERATOR_PLUGIN, "edited_between")
+    scene, params = ROOT / "scenes" / "cornell_box.xml", {"res": "16"}
+
+    def reference(executor=None):
+        return get_reference(scene, params, spp=8, sampler="edited_between", spp_per_pass=4,
+                             cache=False, executor=executor)
+
+    plugins.load_plugin(plugin)
+    cluster = DaskExecutor.connect("local:1")
+    try:
+        before = reference(cluster)
+        same_stats(reference(), before)
+        plugins.unload_plugin(plugin)
+        plugin.write_text(plugin.read_text().replace("return rng.random",
+                                                     "return 0.5 * rng.random"))
+        plugins.load_plugin(plugin)
+        after = reference()
+        assert not np.array_equal(after.stats.mean, before.stats.mean)
+        same_stats(after, reference(cluster))
+        plugin.write_text(plugin.read_text().replace("0.5 *", "0.25 *"))
+        cluster.client.restart()  # a fresh worker loads the file as it is now
+        with pytest.raises(SamplerError) as refused:
+            reference(cluster)
+        message = str(refused.value)
+        assert "\n" not in message and str(plugin) in message, message
+        assert "is not the code the client loaded" in message, message
+    finally:
+        cluster.close()
+
+
 def test_a_scene_naming_an_unloaded_users_sampler_points_to_plugin(scene, capsys):
     """Mitsuba only says 'Plugin "mine" not found'; mcrt says how to load it."""
     scene.write_text(scene.read_text().replace('type="jittered"', 'type="not_loaded_here"')
