@@ -129,7 +129,8 @@ def _add_global_options(parser: argparse.ArgumentParser, after_command: bool) ->
                        help="no progress bars and no notes (results and errors still print)")
     group.add_argument(_VARIANT, metavar="NAME", default=unset if after_command else None,
                        help="Mitsuba variant to render with (default llvm_ad_rgb; also "
-                            "llvm_ad_spectral, llvm_ad_mono, cuda_ad_* where a GPU exists)")
+                            "llvm_ad_spectral, llvm_ad_mono and their _polarized forms, "
+                            "cuda_ad_* where a GPU exists)")
     group.add_argument(_PLUGIN, metavar="FILE.py", action="append",
                        dest="plugins_after" if after_command else "plugins",
                        default=unset if after_command else None,
