@@ -400,3 +400,18 @@ def test_interrupt_while_the_report_is_written_says_how_to_write_it(study, tmp_p
     code, _, err = _run(capsys, "compare", str(config), "-o", str(out))
     assert code == 0 and "resuming: 4 of 4 cells" in err
     assert [untimed(c) for c in _json(out)["cells"]] == [untimed(c) for c in baseline["cells"]]
+
+
+def test_a_state_set_aside_by_its_own_command_says_what_resumes_it(tmp_path, notes):
+    """The configuration edited in place: the same command line now makes another
+    study, so "to resume it, run: <that command>" could not resume the state set
+    aside; the note says to restore the inputs instead."""
+    path = tmp_path / "study.toml"
+    path.write_text(CONFIG)
+    state = StudyState.open(tmp_path / "out", load_config(path))
+    state.add(_fake_cell("checkerboard", "jittered", 4), None, seconds=1.5)
+    path.write_text(CONFIG.replace("seeds = 2", "seeds = 3"))
+    assert StudyState.open(tmp_path / "out", load_config(path)).cells == {}
+    aside = [m for m in notes if "held the saved state of another study" in m]
+    assert aside and "this same command saved it when its inputs were others" in aside[-1]
+    assert "to resume it, run:" not in aside[-1]

@@ -214,9 +214,15 @@ class StudyState:
             raise McrtError(f"{self.directory} holds the saved state of another study, which "
                             f"cannot be moved aside ({error.strerror}); move it away yourself "
                             f"or write this study's report to another -o DIR") from None
-        how = (f"to resume it, run: {saved['job']}" if saved["job"] else
-               "the study that saved it (same configuration, scene files, variant and "
-               "versions) resumes from it")
+        if saved["job"] and saved["job"] == self.command:  # this command, other inputs
+            how = ("this same command saved it when its inputs were others (the content of "
+                   "the configuration or of a scene, plugin or point-set file, or the mcrt, "
+                   "Mitsuba or Dr.Jit version): restore them and run it again to resume it")
+        elif saved["job"]:
+            how = f"to resume it, run: {saved['job']}"
+        else:
+            how = ("the study that saved it (same configuration, scene files, variant and "
+                   "versions) resumes from it")
         log.warning("%s held the saved state of another study (%d cells): kept in %s; %s",
                     self.directory, saved["cells"], target, how)
 
