@@ -50,8 +50,8 @@ Reconstruction filters
     the box-binned moments below.
 
 Standard error
-    ``standard_error = sqrt(variance / n)`` (NaN, unknown, for a pixel none of
-    whose samples was finite: its mean is 0 by convention) assumes independent
+    ``standard_error = sqrt(variance / n)`` (NaN, unknown, for a pixel with fewer
+    than two finite samples; with none its mean is 0 by convention) assumes independent
     samples, which holds exactly for the default ``independent`` sampler. For stratified or
     low-discrepancy samplers the samples of one pass are negatively correlated,
     so the true error of the mean is usually smaller: the reported value is then

@@ -111,7 +111,8 @@ def write_heatmap(path, spp: np.ndarray, lo: float | None = None,
     ax.set_title(text, fontsize=9)
     bar = fig.add_axes(((left + map_w + 14) / fig_w, bottom / fig_h, 14 / fig_w, map_h / fig_h))
     colorbar = fig.colorbar(image, cax=bar)
-    colorbar.set_ticks(spp_ticks(lo, hi), labels=[f"{t:.0f}" for t in spp_ticks(lo, hi)])
+    ticks = spp_ticks(lo, hi)
+    colorbar.set_ticks(ticks, labels=[f"{t:.0f}" for t in ticks])
     colorbar.minorticks_off()
     colorbar.set_label("samples per pixel (log scale)", fontsize=9)
     with atomic_path(path) as tmp:

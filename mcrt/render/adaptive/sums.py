@@ -96,7 +96,7 @@ class PixelSums:
         self.count = np.zeros(pixels)
         self.bad = np.zeros(pixels)
         self.mean_y = np.zeros(pixels)
-        self.se_y = np.full(pixels, np.nan)  # unknown until a sample is finite
+        self.se_y = np.full(pixels, np.nan)  # unknown until two samples are finite
         #: The moments on the device (``STAT_COLUMNS`` arrays), evaluated: a
         #: recorded wavefront reads them.
         self.moments = [dr.opaque(mi.Float64, 0.0, pixels) for _ in range(STAT_COLUMNS)]

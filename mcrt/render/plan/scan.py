@@ -29,8 +29,8 @@ DEFAULT_ALPHA = 0.1
 ALWAYS_GLOSSY = {"principled", "principledthinfilm", "measured", "hair"}
 SPECULAR = {"conductor", "dielectric", "thindielectric", "plastic", "polarizer", "retarder"}
 DIELECTRIC = {"dielectric", "roughdielectric", "thindielectric"}
-#: BSDFs with a cut-out (a null lobe weighted by an opacity): Mitsuba's ``path``
-#: lights them otherwise than ``direct`` does (see :func:`.integrator.choose_integrator`).
+#: BSDFs with a cut-out (a null lobe weighted by an opacity): Mitsuba 3.9's ``path``
+#: renders them too dark (docs/mask-path-bias.md; :func:`.integrator.choose_integrator`).
 CUT_OUT = {"mask"}
 #: Emitters that light from an area (a BSDF sample helps them through MIS).
 EXTENDED_EMITTERS = {"area", "constant", "envmap", "sunsky", "directionalarea"}
