@@ -254,7 +254,9 @@ class _State:
         self.pending: list[Any] = []  # per wavefront queued: per_pixel, shape (device arrays)
         self.traced: list[Any] = []  # the same, traced in a frozen function, not yet taken
         #: Cloned and seeded per wavefront for the representatives' shading dimensions.
-        self.shading = mi.load_dict({"type": "independent", "sample_count": 1})
+        #: (Loaded serially: this runs on a worker of the scene's parallel instantiation.)
+        self.shading = mi.load_dict({"type": "independent", "sample_count": 1},
+                                    parallel=False)
 
 
 def _ray_width(ray: mi.Ray3f) -> int:

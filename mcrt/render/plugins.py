@@ -73,7 +73,9 @@ def wrapper_properties(plugin: str, props: mi.Properties, declared: Iterable[str
                             f"{', '.join(names)}")
     if len(nested) > 1:
         raise McrtError(f"{plugin}: expected one nested integrator, got {len(nested)}")
-    inner = nested[0] if nested else mi.load_dict({"type": "path"})
+    # (parallel=False: a constructor may run on a worker of the scene's own parallel
+    # instantiation; a load nested there gains nothing from more threads)
+    inner = nested[0] if nested else mi.load_dict({"type": "path"}, parallel=False)
     if not isinstance(inner, mi.SamplingIntegrator):
         raise McrtError(f"{plugin}: the nested integrator must be a sampling integrator "
                         f"(path, direct, ...), got {type(inner).__name__}")
