@@ -204,6 +204,9 @@ class SceneArrays:
         self.params = mi.traverse(scene)
         self.keys = []
         for key in self.params.keys():
+            if self.params.properties[key][0] is None:
+                continue  # Mitsuba 3.9.1's hair BSDF lists an unset sigma_a as None,
+                # which reading the parameter fails on (TypeError in its hashing)
             value = self.params[key]
             if dr.is_jit_v(value) and dr.width(value) != 1:
                 self.keys.append(key)
