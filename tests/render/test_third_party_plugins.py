@@ -12,6 +12,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
+from mcrt.errors import McrtError
 from mcrt.render.plan import plan_scene
 from tests.render.test_third_party_features import scene_file
 from tests.render.test_third_party_scenes import mitsuba_mean, planned_mean, z_score
@@ -32,3 +35,16 @@ def test_a_hair_bsdf_renders(tmp_path: Path):
     path = scene_file(tmp_path, POINT_LIGHT + sphere('<bsdf type="hair"/>'))
     assert plan_scene(path).plan.on("glossy")
     assert z_score(planned_mean(path), mitsuba_mean(path)) < 5
+
+
+@pytest.mark.parametrize("bsdf", ["principledthin", "pplastic"])
+def test_rough_bsdfs_without_a_smooth_counterpart_are_glossy(tmp_path: Path, bsdf: str):
+    """The thin principled BSDF (roughness 0.5 unless set; the plan looked for a
+    plugin named ``principledthinfilm``, which Mitsuba 3.9 does not have) and the
+    polarized plastic (alpha 0.1 unless set) have glossy lobes: the plan said "no
+    rough BSDF", and switching glossy off must be refused, not ignored."""
+    path = scene_file(tmp_path, POINT_LIGHT + sphere(f'<bsdf type="{bsdf}" id="coat"/>'))
+    glossy = plan_scene(path).plan.effects["glossy"]
+    assert glossy.on and glossy.reason == f"rough BSDFs: coat ({bsdf})"
+    with pytest.raises(McrtError, match=f"cannot make the '{bsdf}' BSDF smooth"):
+        plan_scene(path, overrides={"glossy": False})

@@ -25,9 +25,12 @@ ROUGH_TO_SMOOTH = {"roughconductor": "conductor", "roughplastic": "plastic",
 ROUGH_ONLY_PROPS = ("alpha", "alpha_u", "alpha_v", "distribution", "sample_visible")
 #: Mitsuba's ``alpha`` when a rough BSDF sets none.
 DEFAULT_ALPHA = 0.1
-#: BSDFs that are glossy whatever their parameters.
-ALWAYS_GLOSSY = {"principled", "principledthinfilm", "measured", "hair"}
-SPECULAR = {"conductor", "dielectric", "thindielectric", "plastic", "polarizer", "retarder"}
+#: BSDFs that are glossy whatever their parameters (Mitsuba 3.9's plugin names;
+#: ``pplastic`` is a rough polarized plastic, alpha 0.1 unless set, with no smooth
+#: counterpart to turn into).
+ALWAYS_GLOSSY = {"principled", "principledthin", "measured", "hair", "pplastic"}
+SPECULAR = {"conductor", "dielectric", "thindielectric", "plastic", "polarizer", "retarder",
+            "circular"}
 DIELECTRIC = {"dielectric", "roughdielectric", "thindielectric"}
 #: BSDFs with a cut-out (a null lobe weighted by an opacity): Mitsuba 3.9's ``path``
 #: renders them too dark (docs/mask-path-bias.md; :func:`.integrator.choose_integrator`).
