@@ -58,7 +58,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.sampling import mitsuba_message, quiet_sampler_warnings
-from ..errors import McrtError
+from ..errors import McrtError, SamplerError
 from ..samplers.points import point_sets
 
 #: Default trials (pixels) per sample count.
@@ -288,6 +288,18 @@ def effective_count(sampler: str, n: int, **params) -> int:
         return mi.load_dict({"type": sampler, "sample_count": int(n), **params}).sample_count()
 
 
+def check_points(sampler: str, points: np.ndarray) -> None:
+    """Refuse film points that are not finite or not in [0, 1) (a user's sampler
+    breaking the contract): the integrands would be evaluated off the unit square,
+    or on NaN, and the MSE would be wrong or NaN without saying why."""
+    bad = ~(np.isfinite(points) & (points >= 0.0) & (points < 1.0))
+    if bad.any():
+        example = float(points[bad][0])
+        raise SamplerError(f"{sampler}: {np.count_nonzero(bad)} of {points.size} film coordinates "
+                           f"at N = {points.shape[1]} are outside [0, 1), e.g. {example!r} "
+                           f"(mcrt check {sampler} tests the sampler contract)")
+
+
 def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[int] = DEFAULT_COUNTS,
                     max_trials: int = DEFAULT_TRIALS, budget: int = POINT_BUDGET, seed: int = 0,
                     timed: bool = True, progress: Callable[[], None] | None = None,
@@ -303,7 +315,9 @@ def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[in
     compilation, Poisson tables), then the timed call runs between
     ``dr.sync_thread()`` barriers and includes evaluating the integrands.
     Counts the sampler cannot produce (e.g. ``poisson_disk`` above its table
-    size) are recorded in ``skipped``. ``progress()`` is called after each count.
+    size) are recorded in ``skipped``; points that are not finite or not in
+    [0, 1) raise SamplerError (:func:`check_points`). ``progress()`` is called
+    after each count.
     """
     names = list(integrands)
     unknown = [name for name in names if name not in INTEGRANDS]
@@ -333,6 +347,7 @@ def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[in
             seconds = time.perf_counter() - start
         if points.shape[1] != n:
             raise RuntimeError(f"{sampler}: expected {n} samples per pixel, got {points.shape[1]}")
+        check_points(sampler, points)
         for name in names:
             integrand = INTEGRANDS[name]
             est = estimates[name]

@@ -219,3 +219,49 @@ def test_time_samplers_times_every_point_by_the_protocol(monkeypatch):
     assert all(p.seconds > 0 for p in points)
     for p, old in zip(points, before, strict=True):
         np.testing.assert_array_equal(p.estimates, old)
+
+
+def _off_square_class(value: float) -> type:
+    """A user's Dr.Jit sampler whose film x is ``value`` (NaN, or past 1) for the
+    lanes whose hashed uniform falls below 1/16, white noise elsewhere."""
+    import importlib
+
+    import drjit as dr
+    import mitsuba as mi
+
+    from mcrt.samplers.kit import hash_extend, mix32, unit_float
+
+    base = importlib.import_module("mcrt.samplers.base").McrtSampler  # the active variant's
+
+    class OffSquare(base):  # type: ignore[misc, valid-type]
+        def _sample_1d(self, key, sample, active=True):
+            return unit_float(hash_extend(key, sample))
+
+        def _sample_2d(self, key, sample, active=True):
+            h = hash_extend(key, sample)
+            u = unit_float(h)
+            return mi.Point2f(dr.select(u < 1.0 / 16.0, value, u), unit_float(mix32(h)))
+    return OffSquare
+
+
+@pytest.mark.parametrize("value, shown", [(math.nan, "e.g. nan"), (1.25, "e.g. 1.25")])
+def test_points_off_the_unit_square_are_refused(tmp_path, capsys, value, shown):
+    """A sampler breaking the [0, 1) contract made a NaN MSE (the plot then crashed
+    with a traceback and the slope read "fewer than two sample counts"), or
+    silently integrated off the square (values past 1: a wrong MSE); `mcrt check`'s
+    MSE rate was skipped as "makes 0 of N". Now a one-line error names the sampler."""
+    import mcrt
+    from mcrt.samplers import registry
+
+    mcrt.register_sampler("off_square_test", sampler=_off_square_class(value))
+    try:
+        with pytest.raises(ib.SamplerError, match=r"off_square_test: \d+ of 2048 film "
+                                                  r"coordinates at N = 16 are outside \[0, 1\)"):
+            ib.run_convergence("off_square_test", ["gaussian"], counts=(16,), max_trials=64,
+                               timed=False)
+        code, _, stderr = run_cli(capsys, "-q", "integrate", "gaussian", "--sampler",
+                                  "off_square_test", "--max-n", "64", "-o", str(tmp_path / "x"))
+        assert code == 2 and stderr.count("\n") == 1 and shown in stderr
+        assert "Traceback" not in stderr
+    finally:
+        registry.unregister("off_square_test")
