@@ -48,3 +48,26 @@ def test_rough_bsdfs_without_a_smooth_counterpart_are_glossy(tmp_path: Path, bsd
     assert glossy.on and glossy.reason == f"rough BSDFs: coat ({bsdf})"
     with pytest.raises(McrtError, match=f"cannot make the '{bsdf}' BSDF smooth"):
         plan_scene(path, overrides={"glossy": False})
+
+
+AREA_LIGHT = """<shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/>
+  <translate z="3"/></transform><emitter type="area"><rgb name="radiance" value="6"/></emitter>
+  </shape>"""
+
+
+@pytest.mark.parametrize("integrator, reason", [
+    ('<integrator type="depth"/>', "depth as authored: depth renders distances, no lighting"),
+    ('<integrator type="aov"><string name="aovs" value="dd:depth"/></integrator>',
+     "aov as authored: aov renders its AOV channels, no lighting")])
+def test_integrators_that_render_no_light_have_no_lighting_effects(tmp_path: Path,
+                                                                   integrator: str, reason: str):
+    """``depth`` and a bare ``aov`` never sample an emitter or a BSDF: the plan
+    claimed soft shadows (and would claim glossy reflections) for their images."""
+    path = scene_file(tmp_path, AREA_LIGHT + sphere('<bsdf type="roughplastic"/>'))
+    path.write_text(path.read_text().replace('<integrator type="path"/>', integrator))
+    plan = plan_scene(path).plan
+    assert plan.effects_on == ["aa"]
+    for name in ("soft_shadows", "glossy", "indirect"):
+        assert plan.effects[name].reason == reason
+    with pytest.raises(McrtError, match="soft_shadows=on: .*no lighting"):
+        plan_scene(path, overrides={"soft_shadows": True})

@@ -23,6 +23,7 @@ from .model import EFFECTS, Effect
 from .nodes import scalar
 from .scan import (
     DELTA_EMITTERS,
+    NO_LIGHTING,
     VOLUMETRIC,
     AuthoredIntegrator,
     RoughBSDF,
@@ -137,10 +138,14 @@ def decide_aa(d: Decisions) -> None:
 
 
 def unlit_reason(author: AuthoredIntegrator) -> str:
-    depths = sorted({leaf.max_depth for leaf in author.leaves()})
-    what = "nothing" if depths == [0] else "only the emitters the camera sees"
-    return (f"{author.label} as authored: max_depth {', '.join(map(str, depths))} "
-            f"renders no lighting ({what})")
+    leaves = author.leaves()
+    why = [f"{kind} renders {NO_LIGHTING[kind]}, no lighting"
+           for kind in sorted({leaf.kind for leaf in leaves if leaf.kind in NO_LIGHTING})]
+    depths = sorted({leaf.max_depth for leaf in leaves if leaf.kind not in NO_LIGHTING})
+    if depths:
+        what = "nothing" if depths == [0] else "only the emitters the camera sees"
+        why.append(f"max_depth {', '.join(map(str, depths))} renders no lighting ({what})")
+    return f"{author.label} as authored: {'; '.join(why)}"
 
 
 def decide_unlit(d: Decisions, author: AuthoredIntegrator) -> None:

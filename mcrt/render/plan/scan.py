@@ -56,6 +56,9 @@ DEFAULT_MAX_DEPTH = {"path": -1, "volpath": -1, "volpathmis": -1, "ptracer": -1,
                      "prb_basic": 6, "prbvolpath": 6, "direct_projective": 2}
 #: Integrators that never follow light past one bounce (or trace none at all).
 NO_INDIRECT = {"direct", "depth", "aov"}
+#: Integrators that render no lighting at all, what they render instead: ``depth``,
+#: and an ``aov`` that wraps no integrator (its AOV channels only).
+NO_LIGHTING = {"depth": "distances", "aov": "its AOV channels"}
 #: Integrators that render participating media (the others ignore them).
 VOLUMETRIC = {"volpath", "volpathmis", "prbvolpath"}
 
@@ -283,9 +286,11 @@ class AuthoredIntegrator:
     @property
     def unlit(self) -> bool:
         """Whether every integrator that traces light stops before any lighting:
-        ``max_depth`` 0 renders nothing, 1 only the emitters the camera sees.
-        Such an integrator is rendered as authored (``direct`` would light it)."""
-        return all("max_depth" in leaf.props and 0 <= leaf.max_depth <= 1
+        ``max_depth`` 0 renders nothing, 1 only the emitters the camera sees; or
+        renders none at all (:data:`NO_LIGHTING`). Such an integrator is rendered
+        as authored (``direct`` would light it)."""
+        return all(leaf.kind in NO_LIGHTING
+                   or ("max_depth" in leaf.props and 0 <= leaf.max_depth <= 1)
                    for leaf in self.leaves())
 
     @property
