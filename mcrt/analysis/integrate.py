@@ -249,9 +249,12 @@ class ConvergencePoint:
 
     @property
     def deterministic(self) -> bool:
-        """Every trial gave the same estimate (up to summation-order rounding), as for
-        ``uniform_grid``: the MSE is then a squared bias with no sampling error."""
-        return float(np.ptp(self.estimates)) <= 1e-12 * max(1.0, abs(self.exact))
+        """Every trial gave the same estimate (up to summation-order rounding, relative
+        to the estimates' magnitude), as for ``uniform_grid``: the MSE is then a squared
+        bias with no sampling error. (An absolute floor would call every trial of an
+        integrand of size 1e-30 the same.)"""
+        scale = max(abs(self.exact), float(np.max(np.abs(self.estimates))))
+        return float(np.ptp(self.estimates)) <= 1e-12 * scale
 
 
 @dataclass

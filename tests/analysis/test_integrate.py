@@ -156,6 +156,25 @@ def test_run_convergence_uniform_grid_is_deterministic():
     assert fit.points == 3 and math.isfinite(fit.slope)
 
 
+def test_a_tiny_integrand_is_not_deterministic(monkeypatch):
+    """The Gaussian times 1e-30 on the same points: every error scales by 1e-30, so
+    the weighted fit is the Gaussian's (ln MSE shifts by a constant). The spread of
+    the estimates (~1e-31) was compared with 1e-12 x max(1, |I|), which called the
+    trials identical: an unweighted fit, no chi2/dof, and "deterministic" printed."""
+    gaussian = ib.INTEGRANDS["gaussian"]
+    monkeypatch.setitem(ib.INTEGRANDS, "tiny", ib.Integrand(
+        "tiny", "1e-30 x gaussian", 1e-30 * gaussian.exact,
+        lambda x, y: 1e-30 * gaussian.function(x, y)))
+    res = ib.run_convergence("independent", ["gaussian", "tiny"], counts=(16, 64, 256),
+                             max_trials=256, seed=3, timed=False)
+    tiny, reference = res["tiny"], res["gaussian"]
+    assert not tiny.deterministic and not any(p.deterministic for p in tiny.points)
+    fit, ref = tiny.fit(), reference.fit()
+    assert fit.slope == pytest.approx(ref.slope, rel=1e-9)
+    assert fit.stderr == pytest.approx(ref.stderr, rel=1e-9)
+    assert math.isfinite(fit.chi2_dof) and fit.chi2_dof == pytest.approx(ref.chi2_dof, rel=1e-6)
+
+
 def test_run_convergence_rejects_unknown_integrands():
     with pytest.raises(ib.McrtError, match="unknown integrand"):
         ib.run_convergence("independent", ["nope"])
