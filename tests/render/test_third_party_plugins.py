@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import mitsuba as mi
+import numpy as np
 import pytest
 
 from mcrt.errors import McrtError
@@ -71,3 +73,22 @@ def test_integrators_that_render_no_light_have_no_lighting_effects(tmp_path: Pat
         assert plan.effects[name].reason == reason
     with pytest.raises(McrtError, match="soft_shadows=on: .*no lighting"):
         plan_scene(path, overrides={"soft_shadows": True})
+
+
+def test_soft_shadows_off_makes_a_cube_light_a_point(tmp_path: Path):
+    """A ``cube`` is a closed mesh: its light becomes a point light of intensity
+    L A / 4 at its centre. Its mean normal was measured from a 64x64 grid of
+    area samples, which a mesh maps to triangles through their area CDF, leaving
+    faces unevenly sampled: 0.02 of flat, so the cube was refused as "neither
+    flat nor closed". From its triangles it is 0 to float rounding."""
+    path = scene_file(tmp_path, sphere('<bsdf type="diffuse"/>') + """
+      <shape type="cube"><transform name="to_world"><scale value="0.4"/>
+        <translate x="0.5" z="2.5"/></transform>
+        <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>""")
+    (light,) = plan_scene(path, overrides={"soft_shadows": False}).scene.emitters()
+    assert light.class_name() == "PointLight"
+    params = mi.traverse(light)
+    intensity = float(np.array(params["intensity.value"]).ravel()[0])
+    assert intensity == pytest.approx(5 * 6 * 0.8 ** 2 / 4, rel=1e-5)  # L A / 4
+    position = np.array(params["position"], dtype=np.float64).ravel()
+    np.testing.assert_allclose(position, [0.5, 0, 2.5], atol=1e-6)

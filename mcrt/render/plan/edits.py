@@ -140,11 +140,7 @@ def delta_light(shape: mi.Shape, radiance: np.ndarray, where: str) -> mi.Propert
     integrated over the hemisphere; from a closed shape, as a point of ``L A / 4``
     (its far-field intensity, exact for a sphere)."""
     area = float(np.array(shape.surface_area()).ravel()[0])
-    u = (np.arange(SHAPE_SAMPLES) + 0.5) / SHAPE_SAMPLES
-    x, y = (mi.Float(a.ravel().astype(np.float32)) for a in np.meshgrid(u, u))
-    ps = shape.sample_position(auto_float(0.0), mi.Point2f(x, y))  # uniform over the area
-    centroid = np.array(ps.p, dtype=np.float64).mean(axis=1)
-    normal = np.array(ps.n, dtype=np.float64).mean(axis=1)  # vector area / A
+    centroid, normal = _centroid_and_mean_normal(shape)
     flatness = float(np.linalg.norm(normal))
     if flatness > 1 - FLATNESS_TOLERANCE:
         beam, cutoff = np.radians(SPOT_BEAM_DEG), np.radians(SPOT_CUTOFF_DEG)
@@ -163,6 +159,29 @@ def delta_light(shape: mi.Shape, radiance: np.ndarray, where: str) -> mi.Propert
         raise McrtError(f"{where} is neither flat nor closed (its normals average to "
                         f"{flatness:.2f} of flat): no point or spot light emits like it")
     return light
+
+
+def _centroid_and_mean_normal(shape: mi.Shape) -> tuple[np.ndarray, np.ndarray]:
+    """The centroid of ``shape``'s surface and its mean normal (vector area / A):
+    exact from a mesh's triangles, else from a grid of uniform area samples. A
+    mesh chooses the triangle of a sample from its area CDF, so a grid leaves
+    whole faces under- or over-sampled: a cube's normals averaged to 0.02, not
+    0, and it was refused as "neither flat nor closed"."""
+    u = (np.arange(SHAPE_SAMPLES) + 0.5) / SHAPE_SAMPLES
+    x, y = (mi.Float(a.ravel().astype(np.float32)) for a in np.meshgrid(u, u))
+    ps = shape.sample_position(auto_float(0.0), mi.Point2f(x, y))  # uniform over the area
+    centroid = np.array(ps.p, dtype=np.float64).mean(axis=1)
+    normal = np.array(ps.n, dtype=np.float64).mean(axis=1)
+    if not isinstance(shape, mi.Mesh):
+        return centroid, normal
+    v = np.array(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+    a, b, c = (v[i] for i in np.array(shape.faces_buffer()).reshape(-1, 3).T)
+    vector_areas = np.cross(b - a, c - a) / 2
+    areas = np.linalg.norm(vector_areas, axis=1)
+    exact = vector_areas.sum(axis=0) / areas.sum()
+    if exact @ normal < 0:  # the sampled normals know which side emits (flipped normals)
+        exact = -exact
+    return (areas @ (a + b + c) / 3) / areas.sum(), exact
 
 
 def bake_pose(scene: mi.Scene, d: Decisions, t: float) -> None:
