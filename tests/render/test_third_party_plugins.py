@@ -92,3 +92,25 @@ def test_soft_shadows_off_makes_a_cube_light_a_point(tmp_path: Path):
     assert intensity == pytest.approx(5 * 6 * 0.8 ** 2 / 4, rel=1e-5)  # L A / 4
     position = np.array(params["position"], dtype=np.float64).ravel()
     np.testing.assert_allclose(position, [0.5, 0, 2.5], atol=1e-6)
+
+
+def test_a_batch_sensors_thin_lens_is_depth_of_field(tmp_path: Path):
+    """A ``batch`` sensor renders its sensors side by side; a thin lens among them
+    blurs as it does alone (its lens 2D is drawn), but the plan read only the
+    batch's own plugin and said "pinhole camera (batch)", and dof=off would have
+    rendered the blur it claimed to remove."""
+    film = ('<film type="hdrfilm"><integer name="width" value="32"/>'
+            '<integer name="height" value="16"/><rfilter type="box"/></film>')
+    pose = '<transform name="to_world"><lookat origin="0,-6,1" target="0,0,0" up="0,0,1"/>' \
+           '</transform>'
+    path = tmp_path / "batch.xml"
+    path.write_text(f"""<scene version="3.0.0"><sensor type="batch">{film}
+      <sensor type="thinlens"><float name="aperture_radius" value="0.3"/>
+        <float name="focus_distance" value="3"/>{pose}</sensor>
+      <sensor type="perspective">{pose}</sensor></sensor>
+      {POINT_LIGHT}{sphere('<bsdf type="diffuse"/>')}</scene>""")
+    plan = plan_scene(path).plan
+    assert plan.on("dof") and plan.aperture_sample
+    assert plan.effects["dof"].reason == "batch sensor with 1 thin lens, rendered as authored"
+    with pytest.raises(McrtError, match="dof=off: batch sensor"):
+        plan_scene(path, overrides={"dof": False})

@@ -20,7 +20,7 @@ from ..motion import NEGLIGIBLE_STREAK_PX, Motion
 from ..scene import SceneDescription
 from .camera import CameraModel, circle_of_confusion, streak_px
 from .model import EFFECTS, Effect
-from .nodes import scalar
+from .nodes import children, scalar
 from .scan import (
     DELTA_EMITTERS,
     NO_LIGHTING,
@@ -206,7 +206,27 @@ def decide_glossy(d: Decisions, facts: ScanFacts) -> None:
         d.to_smooth = [] if effect.forced else smooth
 
 
+def batch_thin_lenses(facts: ScanFacts) -> int:
+    """How many of a ``batch`` sensor's sensors are thin lenses (0 for any other)."""
+    props = facts.desc.nodes[facts.scan.sensor].props
+    if props.plugin_name() != "batch":
+        return 0
+    nodes = facts.desc.nodes
+    return sum(1 for _, j in children(facts.desc, props)
+               if nodes[j].type == mi.ObjectType.Sensor
+               and nodes[j].props.plugin_name() == "thinlens")
+
+
 def decide_dof(d: Decisions, facts: SceneFacts) -> None:
+    lenses = batch_thin_lenses(facts)
+    if lenses:  # their blur is the batch's own: not measured, never switched off
+        reason = (f"batch sensor with {lenses} thin lens{'es' if lenses > 1 else ''}, "
+                  f"rendered as authored")
+        if d.overrides.get("dof") is False:
+            raise McrtError(f"dof=off: {reason}; mcrt cannot switch a batch's lenses to "
+                            f"pinholes (give the scene a perspective sensor instead)")
+        d.decide("dof", True, reason)
+        return
     if facts.lens is None:
         d.decide("dof", False, f"pinhole camera ({facts.scene_camera})",
                  "the camera is not a thinlens (give it aperture_radius and focus_distance)")
