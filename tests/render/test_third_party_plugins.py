@@ -114,3 +114,18 @@ def test_a_batch_sensors_thin_lens_is_depth_of_field(tmp_path: Path):
     assert plan.effects["dof"].reason == "batch sensor with 1 thin lens, rendered as authored"
     with pytest.raises(McrtError, match="dof=off: batch sensor"):
         plan_scene(path, overrides={"dof": False})
+
+
+def test_a_sensor_in_fog_renders_as_mi_render_does_and_the_note_names_it(tmp_path: Path):
+    """A medium given to the sensor (the camera stands in fog, nothing bounds it):
+    its rays start in it. The note called it by the parser's placeholder name
+    ("_arg_0 of 'perspective'")."""
+    path = scene_file(tmp_path, POINT_LIGHT + sphere('<bsdf type="diffuse"/>'))
+    path.write_text(path.read_text().replace(
+        '<integrator type="path"/>', '<integrator type="volpath"/>').replace(
+        '<film type="hdrfilm">', '<medium type="homogeneous"><float name="sigma_t" value="0.15"/>'
+        '<rgb name="albedo" value="0.9"/></medium><film type="hdrfilm">'))
+    plan = plan_scene(path).plan
+    assert plan.notes == ["participating media: homogeneous (medium of 'perspective'); "
+                          "rendered by volpath"]
+    assert z_score(planned_mean(path), mitsuba_mean(path)) < 5

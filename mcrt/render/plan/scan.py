@@ -137,7 +137,8 @@ def _scan_media(scan: Scan, desc: SceneDescription, props: mi.Properties) -> Non
     for key, j in children(desc, props):
         if desc.nodes[j].type == mi.ObjectType.Medium:
             owner = props.id() or props.plugin_name()
-            scan.media.append(f"{desc.nodes[j].props.plugin_name()} ({key} of '{owner}')")
+            role = "medium" if key.startswith("_arg_") else key  # a sensor's has no name
+            scan.media.append(f"{desc.nodes[j].props.plugin_name()} ({role} of '{owner}')")
 
 
 def _roughness(props: mi.Properties) -> float:
