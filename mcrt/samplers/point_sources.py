@@ -46,7 +46,8 @@ DEFAULT_SETS = 256
 MAX_SETS = 1 << 16
 #: Largest point count of one set.
 MAX_POINTS = 1 << 20
-#: Largest float32 below 1: points are stored as float32, and must stay below 1 there.
+#: Largest float32 below 1: points are stored as float32, and a point of [0, 1) that would
+#: round up to 1 there is stored as this.
 ONE_MINUS_EPSILON = float.fromhex("0x1.fffffep-1")
 #: Version of the generator cache's file layout (part of every key).
 _CACHE_FORMAT = 1
@@ -74,12 +75,14 @@ def check_table(points: Any, where: str) -> np.ndarray:
         t, i, _ = bad[0]
         raise SamplerError(f"{where}: point {i} of set {t} is not a number: "
                            f"{tuple(array[t, i].tolist())}")
-    single = array.astype(np.float32)
-    outside = np.argwhere((array < 0) | (single >= 1))
+    outside = np.argwhere((array < 0) | (array >= 1))
     if outside.size:
         t, i, _ = outside[0]
         raise SamplerError(f"{where}: point {i} of set {t} is {tuple(array[t, i].tolist())}, "
-                           f"outside [0, 1) (in float32)")
+                           f"outside [0, 1)")
+    # A value within 2^-25 of 1 rounds up to 1 in float32 (rng.random() gives one in
+    # ~3e7, so most large tables hold one): it is stored as the largest float32 below 1.
+    single = np.minimum(array, ONE_MINUS_EPSILON).astype(np.float32)
     return np.ascontiguousarray(single)
 
 
