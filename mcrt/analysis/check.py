@@ -41,7 +41,7 @@ from ..core.sampling import (
 )
 from ..errors import SamplerError
 from ..samplers import registry
-from ..samplers.points import point_sets
+from ..samplers.points import lane_array, point_sets
 
 CALLS: tuple[str, ...] = ("2d", "1d", "1d", "2d", "2d", "1d")
 MAX_KEPT_SHARE = 0.5
@@ -177,18 +177,9 @@ def draw(sampler: mi.Sampler, calls: tuple[str, ...] = CALLS) -> list[np.ndarray
     """Values of ``calls`` ("1d"/"2d") as float64 ``(lanes, 1 or 2)`` arrays; a
     call that does not return one value per lane is the sampler's error, said so."""
     lanes = sampler.wavefront_size()
-    out = []
-    for i, call in enumerate(calls):
-        values = np.array(sampler.next_2d() if call == "2d" else sampler.next_1d(),
-                          dtype=np.float64)
-        values = values.T if call == "2d" else values.reshape(-1, 1)
-        if values.shape != (lanes, 2 if call == "2d" else 1):
-            count = f"{values.size} value{'s' if values.size != 1 else ''}"
-            raise SamplerError(f"call {i + 1} (next_{call}) returned {count} for {lanes} "
-                               f"lanes: a sampler returns one "
-                               f"{'point' if call == '2d' else 'value'} per lane")
-        out.append(values)
-    return out
+    return [lane_array(sampler.next_2d() if call == "2d" else sampler.next_1d(), lanes, call,
+                       f"call {i + 1} (next_{call}) ", np.float64)
+            for i, call in enumerate(calls)]
 
 
 # --------------------------------------------------------------------------- contract

@@ -64,6 +64,7 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
         instance.seed_lanes(seed, pixel, sample)
         instance.skip_dimensions(dimension)
         rows = np.arange(pixel_ids.size)
+        lanes = pixel_ids.size * spp
     else:
         count = int(pixel_ids.max()) + 1
         if count > MAX_BUILTIN_PIXEL:
@@ -73,8 +74,25 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
         for _ in range(dimension):
             instance.next_1d()
         rows = pixel_ids
+        lanes = count * spp
     values = instance.next_2d() if ndim == 2 else instance.next_1d()
-    array = np.array(values, dtype=np.float32)
-    array = array.T if ndim == 2 else array[:, None]  # (lanes, ndim)
+    name = sampler if isinstance(sampler, str) else (getattr(instance, "plugin_name", "")
+                                                     or type(instance).__name__)
+    array = lane_array(values, lanes, f"{ndim}d", f"{name}: next_{ndim}d (dimension {dimension}) ")
     dr.sync_thread()
     return array.reshape(-1, spp, ndim)[rows]
+
+
+def lane_array(values, lanes: int, call: str, where: str = "",
+               dtype: type = np.float32) -> np.ndarray:
+    """The result of a ``next_1d`` (``call`` "1d") or ``next_2d`` ("2d") call on
+    ``lanes`` lanes as a ``(lanes, 1 or 2)`` array; a sampler that did not return
+    one value (point) per lane is told so in one line (``where`` starts it)."""
+    two = call == "2d"
+    array: np.ndarray = np.array(values, dtype=dtype)
+    if array.shape != ((2, lanes) if two else (lanes,)):
+        what = "point" if two else "value"
+        got = array.size // 2 if two else array.size
+        raise SamplerError(f"{where}returned {got} {what}{'s' if got != 1 else ''} for "
+                           f"{lanes} lanes: a sampler returns one {what} per lane")
+    return array.T if two else array[:, None]

@@ -337,3 +337,39 @@ def test_a_sampler_returning_one_value_for_all_lanes_is_told_so(capsys, register
     line = next(x for x in out.splitlines() if x.startswith("unbiasedness"))
     assert "call 2 (next_1d) returned 1 value for 16384 lanes" in line
     assert "reshape" not in out and "AxisError" not in out
+
+
+def _half_2d_class() -> type:
+    base = importlib.import_module("mcrt.samplers.base").McrtSampler
+
+    class Half2D(base):  # type: ignore[misc, valid-type]
+        """2D calls return a point for only the first half of the lanes."""
+
+        plugin_name = "half_2d_test"
+
+        def _sample_1d(self, key, sample, active=True):
+            return unit_float(hash_extend(key, sample))
+
+        def _sample_2d(self, key, sample, active=True):
+            u = self._sample_1d(key, sample, active)
+            first = dr.gather(mi.Float, u, dr.arange(mi.UInt32, dr.width(u) // 2))
+            return mi.Point2f(first, first)
+    return Half2D
+
+
+def test_a_sampler_returning_too_few_points_is_told_so_everywhere(capsys, register, tmp_path):
+    """A 2D call with half the lanes' points: check's contract rows counted the
+    coordinates ("returned 128 values for 128 lanes"), its MSE rate, discrepancy and
+    spectrum rows printed numpy's IndexError, and mcrt integrate and mcrt pattern
+    ended in that traceback; point_sets now says so in one line."""
+    register("half_2d_test", sampler=_half_2d_class())
+    code, out, _ = run_cli(capsys, "check", "half_2d_test", "--quick", "-q")
+    assert code == 1 and "call 1 (next_2d) returned 64 points for 128 lanes" in out
+    assert "IndexError" not in out and "values for" not in out
+    rate = next(x for x in out.splitlines() if x.startswith("mse_rate"))
+    assert "half_2d_test: next_2d (dimension 0) returned 2048 points for 4096 lanes" in rate
+    for argv in (["integrate", "disk", "--sampler", "half_2d_test", "--max-n", "16"],
+                 ["pattern", "half_2d_test", "--spp", "16"]):
+        code, _, err = run_cli(capsys, "-q", *argv, "-o", str(tmp_path / argv[0]))
+        assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+        assert "half_2d_test: next_2d (dimension 0) returned" in err
