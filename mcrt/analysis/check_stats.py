@@ -13,7 +13,11 @@
   value: 2.5% at P = 16384 (10% quick) for independent points, 2% (8%) for
   jittered; points in [0, 0.9) bias the disk by +23% (t > 10). Pixels sharing T
   unshifted table sets (pointset, randomize none/symmetry) share the table's
-  error: ``se^2 = sd^2 (1/P + 1/T)``. At a larger N, P is capped so that
+  error: ``se^2 = sd^2 (1/P + 1/T)``, for a product of calls a and b
+  ``sd^2 / P + I^2 (sd_a + sd_b)^2 / T`` (both calls see the one table's error),
+  and t has ``min(P, T) - 1`` degrees of freedom (the SDs behind the table's
+  error come from T sets: with T = 16 and P - 1 the false alarms were ~0.9%, not
+  0.1%). At a larger N, P is capped so that
   ``P N <= unbiased_lanes`` (16384 x 64; quick 1024 x 64).
 
   A sampler that claims **quadrature** (``uniform_grid``: film positions at the
@@ -67,31 +71,48 @@ def _table_sets(sampler: mi.Sampler) -> int | None:
     return int(table()[2])
 
 
-def _t_test(values: np.ndarray, exact: float, sets: int | None) -> tuple[float, float, float]:
-    """Relative bias, its standard error and t of per-pixel estimates (module doc)."""
+def _t_test(values: np.ndarray, exact: float, sets: int | None,
+            table_sd: float | None = None) -> tuple[float, float, float]:
+    """Relative bias, its standard error and t of per-pixel estimates (module doc);
+    ``table_sd`` is the SD that carries a shared table's error when it is not the
+    pixels' own (a product of two calls, :func:`_terms`)."""
     bias = float(np.mean(values)) - exact
-    se = float(np.std(values, ddof=1)) * math.sqrt(1 / values.size + (1 / sets if sets else 0))
+    sd = float(np.std(values, ddof=1))
+    table = sd if table_sd is None else table_sd
+    se = math.sqrt(sd * sd / values.size + (table * table / sets if sets else 0.0))
     se *= float(np.ptp(values) > 1e-12 * max(1.0, abs(exact)))  # 0: deterministic
     t = bias / se if se > 0 else 0.0 if abs(bias) <= 1e-9 else math.copysign(math.inf, bias)
     return bias / exact, se / abs(exact), t
 
 
-Terms = dict[str, tuple[np.ndarray, float]]
+#: Per term: the values at each point (P, N), the integral, and the SD of its table
+#: error (None: the pixels' own SD).
+Terms = dict[str, tuple[np.ndarray, float, float | None]]
 
 
 def _terms(g: Integrand, film: np.ndarray, third: np.ndarray, last: np.ndarray,
            quadrature: bool) -> tuple[Terms, Terms]:
     """Values of integrand ``g`` at each point ``(P, N)`` of calls 1, 3 and 4, and
     their integral, by term: (tested, reported only). A quadrature sampler's film
-    terms are reported, the product of calls 3 and 4 tested instead (module doc)."""
+    terms are reported, the product of calls 3 and 4 tested instead (module doc).
+
+    Both calls of a product draw their sets from one shared table, whose mean
+    ``I + e`` they both see: the product's table error is ``2 I e`` to first order,
+    so its SD is at most ``|I| (sd_a + sd_b)`` with ``sd`` each call's per-pixel SD
+    (the pixels' own SD of the product is smaller: t's SD was 1.2-1.3, not 1)."""
     f0, f2, f3 = (g.function(c[..., 0], c[..., 1]) for c in (film, third, last))
+    sd = {id(f): float(np.std(f.mean(axis=1), ddof=1)) for f in (f0, f2, f3)}
+
+    def product_of(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, float]:
+        return a * b, g.exact ** 2, abs(g.exact) * (sd[id(a)] + sd[id(b)])
+
     own, product = g.name, f"{g.name} x {g.name}"
-    terms = {own: (f0, g.exact), f"{g.name} call 4": (f3, g.exact),
-             product: (f0 * f3, g.exact ** 2)}
+    terms: Terms = {own: (f0, g.exact, None), f"{g.name} call 4": (f3, g.exact, None),
+                    product: product_of(f0, f3)}
     if not quadrature:
         return terms, {}
     reported = {key: terms.pop(key) for key in (own, product)}
-    terms[f"{g.name} call 3 x 4"] = (f2 * f3, g.exact ** 2)
+    terms[f"{g.name} call 3 x 4"] = product_of(f2, f3)
     return terms, reported
 
 
@@ -115,12 +136,16 @@ def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> Check
     film: dict[str, tuple[float, float, float]] = {}
     for g in INTEGRANDS.values():
         tested, info = _terms(g, first, third, last, "quadrature" in subject.info.claims)
-        tests.update({k: _t_test(f.mean(axis=1), v, sets) for k, (f, v) in tested.items()})
-        film.update({k: _t_test(f.mean(axis=1), v, sets) for k, (f, v) in info.items()})
-    p = [two_sided_p(t, pixels - 1) if math.isfinite(t) else 0.0 for _, _, t in tests.values()]
+        tests.update({k: _t_test(f.mean(axis=1), v, sets, table)
+                      for k, (f, v, table) in tested.items()})
+        film.update({k: _t_test(f.mean(axis=1), v, sets, table)
+                     for k, (f, v, table) in info.items()})
+    # A shared table of T sets: the SDs behind its error come from T sets, not P pixels.
+    dof = pixels - 1 if sets is None else min(pixels, sets) - 1
+    p = [two_sided_p(t, dof) if math.isfinite(t) else 0.0 for _, _, t in tests.values()]
     rejected = holm(p, ALPHA)
-    limit = t_quantile(1 - ALPHA / (2 * len(p)), pixels - 1)
-    detectable = (limit + t_quantile(POWER, pixels - 1)) * max(s for _, s, _ in tests.values())
+    limit = t_quantile(1 - ALPHA / (2 * len(p)), dof)
+    detectable = (limit + t_quantile(POWER, dof)) * max(s for _, s, _ in tests.values())
     flagged = [f"{k}: bias {b:+.2%} (t = {t:+.3g}{', no sampling error' if s == 0 else ''})"
                for (k, (b, s, t)), r in zip(tests.items(), rejected, strict=True) if r]
     detail = ("biased: " + "; ".join(flagged) if flagged else
