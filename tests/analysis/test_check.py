@@ -375,7 +375,7 @@ def test_a_sampler_returning_too_few_points_is_told_so_everywhere(capsys, regist
         assert "half_2d_test: next_2d (dimension 0) returned" in err
 
 
-def test_a_shared_table_products_and_degrees_of_freedom_are_calibrated(register):
+def test_a_shared_table_products_and_degrees_of_freedom_are_calibrated(register, cache):
     """40 tables of T = 16 i.i.d. sets (a correct sampler), 1024 pixels each: the
     tables' own error dominates every t. Both calls of a product see the one table's
     error e, so the product's error is 2 I e and its t must follow the single call's
@@ -385,7 +385,8 @@ def test_a_shared_table_products_and_degrees_of_freedom_are_calibrated(register)
     reached ~0.9% at T = 16, P = 16384 (9 of 1000 tables), not 0.1%. t is nearly
     proportional between the two (correlation 0.99), so the slope over 40 tables is
     within +-0.03 of its value (measured 0.98, 1.00 now); bounds [0.9, 1.07]. The
-    SDs behind the table's error come from T sets: T - 1 degrees of freedom."""
+    SDs behind the table's error come from T sets: T - 1 degrees of freedom. (Its 40
+    tables go to a private cache, ``cache``.)"""
     from dataclasses import replace
 
     from mcrt.analysis.check_stats import ALPHA
