@@ -28,10 +28,11 @@ SUITES = ("utk", "funcsamp2d")
 DEFAULT_SAMPLERS = ("independent", "jittered", "sobol", "zsobol", "poisson_disk")
 
 
-def _points(sampler: str, trials: int, n: int, seed: int) -> np.ndarray:
-    params = {"width": trials} if sampler == "zsobol" else {}
+def _points(sampler: str, trials: int, n: int, seed: int, params: dict) -> np.ndarray:
+    """``trials`` point sets of ``n`` points (``params``: the user's ``-P``)."""
+    own = {"width": trials} if sampler == "zsobol" else {}
     with quiet_sampler_warnings():
-        return point_sets(sampler, trials, n, seed=seed, **params)
+        return point_sets(sampler, trials, n, seed=seed, **own, **params)
 
 
 def _counts(published: tuple[int, ...], args: argparse.Namespace) -> list[int]:
@@ -75,7 +76,7 @@ def run_utk(args: argparse.Namespace, samplers: list[str], out: Path) -> list[di
     for name in samplers:
         for index, n in enumerate(counts):
             try:
-                pts = _points(name, trials, n, (args.seed + index) % (1 << 32))
+                pts = _points(name, trials, n, (args.seed + index) % (1 << 32), args.params)
             except Exception as error:  # the sampler refuses this count
                 print(f"{'':9s} {name:13s} {n:5d}  skipped: {mitsuba_message(error)}")
                 continue
@@ -109,7 +110,7 @@ def run_funcsamp(args: argparse.Namespace, samplers: list[str], out: Path) -> li
         errors[name] = {}
         for index, n in enumerate(counts):
             try:
-                pts = _points(name, trials, n, (args.seed + index) % (1 << 32))
+                pts = _points(name, trials, n, (args.seed + index) % (1 << 32), args.params)
             except Exception as error:
                 print(f"  {name}: N = {n} skipped: {mitsuba_message(error)}")
                 continue

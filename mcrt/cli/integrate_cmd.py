@@ -55,6 +55,9 @@ def add_parser(commands) -> None:
     p.add_argument("--sampler", default=None, metavar="NAME[,NAME...]",
                    help=f"comma-separated samplers (default {','.join(DEFAULT_SAMPLERS)}; utk / "
                         f"funcsamp2d: {','.join(_integrate_peers.DEFAULT_SAMPLERS)})")
+    p.add_argument("-P", "--param", action="append", metavar="KEY=VALUE",
+                   help="a parameter of every --sampler, e.g. -P jitter=0.5 or, for your own "
+                        "point sets, --sampler pointset -P filename=sets.npy; repeatable")
     p.add_argument("--min-n", type=positive_int, default=16, metavar="N",
                    help="smallest sample count (default 16)")
     p.add_argument("--max-n", type=positive_int, default=65536, metavar="N",
@@ -84,7 +87,10 @@ def sample_counts(min_n: int, max_n: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .pattern_cmd import parse_params
+
     peer = args.integrand in _integrate_peers.SUITES
+    args.params = parse_params(args.param)
     if args.sampler is None:
         args.sampler = ",".join(_integrate_peers.DEFAULT_SAMPLERS if peer else DEFAULT_SAMPLERS)
     samplers = [check_sampler_name(s.strip()) for s in args.sampler.split(",") if s.strip()]
@@ -101,11 +107,15 @@ def run(args: argparse.Namespace) -> int:
     if args.integrands > 1 << 16:
         raise McrtError(f"--integrands: at most {1 << 16}, got {args.integrands}")
     counts = sample_counts(args.min_n, args.max_n)
+    if args.params:
+        for name in samplers:
+            _check_params(name, counts, args.params)
     target = Path(args.output or f"out/integrate_{args.integrand}")
     with _common.removed_if_refused(target):  # a refused command leaves no folder
         out = ensure_writable_dir(target)
         _common.require_space(out, _common.PLOTS_BYTES, "the plots")
     record = _common.recorded(args, args.integrand, "--sampler", ",".join(samplers),
+                              *_common.param_words("-P", args.param),
                               "--min-n", args.min_n, "--max-n", args.max_n,
                               *(["--trials", args.trials] if args.trials is not None else []),
                               "--integrands", args.integrands, "--budget", args.budget,
@@ -123,13 +133,29 @@ def run(args: argparse.Namespace) -> int:
             bar.postfix(name)
             results[name] = run_convergence(
                 name, [args.integrand], counts, max_trials=args.trials, budget=args.budget,
-                seed=args.seed, timed=False, progress=bar.update)[args.integrand]
+                seed=args.seed, timed=False, progress=bar.update, **args.params)[args.integrand]
         bar.postfix("timing (interleaved rounds)")
-        time_samplers(results.values(), rounds=3, seed=args.seed)
+        time_samplers(results.values(), rounds=3, seed=args.seed, **args.params)
 
     _print_table(integrand, results)
     _write_outputs(out, args, integrand, results, record)
     return 0
+
+
+def _check_params(sampler: str, counts: list[int], params: dict) -> None:
+    """Refuse ``-P`` parameters that ``sampler`` cannot be made with at any count
+    (a count it cannot make is skipped later, with the reason, as without ``-P``)."""
+    from ..core.sampling import make_sampler, quiet_sampler_warnings
+
+    first: McrtError | None = None
+    for n in counts:
+        try:
+            with quiet_sampler_warnings():
+                make_sampler(sampler, n, **params)
+            return
+        except McrtError as error:
+            first = first or error
+    raise McrtError(f"-P: {first}")
 
 
 def _print_table(integrand, results) -> None:

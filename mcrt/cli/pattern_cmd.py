@@ -69,7 +69,7 @@ def add_parser(commands) -> None:
                    help="sampler dimension (call index) to analyse; 0 = film position (default)")
     p.add_argument("--kmax", type=positive_int, default=None, metavar="K",
                    help="largest integer frequency of the spectrum (default ceil(2 sqrt(N)))")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE",
+    p.add_argument("-P", "--param", action="append", metavar="KEY=VALUE",
                    help="sampler parameter, e.g. --param jitter=0.5; repeatable")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="output directory (default out/pattern_<NAME>)")

@@ -284,3 +284,33 @@ def test_points_off_the_unit_square_are_refused(tmp_path, capsys, value, shown):
         assert "Traceback" not in stderr
     finally:
         registry.unregister("off_square_test")
+
+
+def test_integrate_takes_your_point_sets_with_p(tmp_path, capsys):
+    """``-P`` gives every --sampler its parameters: the pointset sampler reads the
+    user's file (here 16 copies of one set per N, randomize none, so every trial's
+    estimate is that set's mean of the integrand, computed again here); the command
+    recorded names the file by absolute path, and a sampler that cannot take a
+    parameter is refused in one line before any work."""
+    rng = np.random.default_rng(3)
+    sets = {f"n{n}": rng.random((1, n, 2)).astype(np.float32) for n in (16, 64)}
+    np.savez(tmp_path / "mine.npz", **{k: np.repeat(v, 16, axis=0) for k, v in sets.items()})
+    out = tmp_path / "int"
+    code, _, err = run_cli(capsys, "-q", "integrate", "disk", "--sampler", "pointset",
+                           "-P", f"filename={tmp_path / 'mine.npz'}", "-P", "randomize=none",
+                           "--max-n", "64", "--trials", "32", "-o", str(out))
+    assert code == 0, err
+    rows = {int(r.split(",")[2]): r.split(",")
+            for r in (out / "integrate_disk.csv").read_text().splitlines()[1:]}
+    assert set(rows) == {16, 64}
+    header = (out / "integrate_disk.csv").read_text().splitlines()[0].split(",")
+    for points in sets.values():
+        expected = float(ib.INTEGRANDS["disk"].estimates(points.astype(np.float64))[0])
+        assert float(rows[points.shape[1]][header.index("mean_estimate")]) == \
+            pytest.approx(expected, rel=1e-12, abs=1e-12)
+    command = json.loads((out / "integrate_disk.json").read_text())["command"]
+    assert f"-P filename={tmp_path / 'mine.npz'}" in command
+    code, _, err = run_cli(capsys, "integrate", "disk", "--sampler", "pointset,jittered",
+                           "-P", f"filename={tmp_path / 'mine.npz'}", "-o", str(tmp_path / "x"))
+    assert code == 2 and err.count("\n") == 1
+    assert "jittered" in err and "filename" in err and not (tmp_path / "x").exists()
