@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))  # the synthetic StudyResult of the figure tests
+sys.path.insert(0, str(ROOT))  # the tests package: the synthetic StudyResult of the figure tests
 
 SAMPLERS = ("uniform_grid", "jittered", "poisson_disk", "sobol", "zsobol", "independent",
             "stratified", "multijitter", "orthogonal", "ldsampler")
@@ -41,9 +41,8 @@ SAMPLERS = ("uniform_grid", "jittered", "poisson_disk", "sobol", "zsobol", "inde
 
 def build(out: Path, size: int, spp: tuple[int, ...]) -> float:
     """Write the report into ``out``; returns the seconds write_report took."""
-    from test_study_plots import synthetic_result
-
     from mcrt.analysis.report import write_report
+    from tests.analysis.test_study_plots import synthetic_result
 
     result = synthetic_result(samplers=SAMPLERS, spp=spp, smooth=True, renders=True,
                               sizes={"checkerboard": (size, size), "cornell_box": (size, size)})
