@@ -98,11 +98,19 @@ def row(res: int, spp: int, name: str, rounds: int) -> None:
 
     def ratio(a: int, b: int) -> str:
         r = [x / y for x, y in zip(wall[a], wall[b], strict=True)]
-        q = statistics.quantiles(r, n=4)
-        return f"{statistics.median(r):.3f} ({q[0]:.3f}-{q[2]:.3f})"
+        q1, q3 = quartiles(r)
+        return f"{statistics.median(r):.3f} ({q1:.3f}-{q3:.3f})"
 
     print(f"| {res}x{res}, {spp} spp | `{name}` | {ms[0]:.2f} | {ms[1]:.2f} | {ms[2]:.2f} | "
           f"{ratio(1, 0)} | {ratio(2, 0)} | {ratio(2, 1)} |", flush=True)
+
+
+def quartiles(values: list[float]) -> tuple[float, float]:
+    """First and third quartiles; a single value is its own (``--rounds 1``: a smoke run)."""
+    if len(values) < 2:
+        return values[0], values[0]
+    q1, _, q3 = statistics.quantiles(values, n=4)
+    return q1, q3
 
 
 def _untimed(value):
