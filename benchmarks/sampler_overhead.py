@@ -83,6 +83,14 @@ def label(sampler: dict) -> str:
     return sampler["type"] + extra
 
 
+def quartiles(values: list[float]) -> tuple[float, float]:
+    """First and third quartiles; a single value is its own (``--rounds 1``: a smoke run)."""
+    if len(values) < 2:
+        return values[0], values[0]
+    q1, _, q3 = statistics.quantiles(values, n=4)
+    return q1, q3
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=15)
@@ -108,7 +116,7 @@ def main() -> None:
         walls = [[s.wall for s in case] for case in samples]
         wall = [a / b for a, b in zip(*walls, strict=True)]
         cpu = [a.cpu / b.cpu for a, b in zip(*samples, strict=True)]
-        q1, _, q3 = statistics.quantiles(wall, n=4)
+        q1, q3 = quartiles(wall)
         low, high = paired_time_ratio(*walls).interval()
         print(f"{label(ours):32s} {label(theirs):24s} {statistics.median(walls[0]):9.3f} "
               f"{statistics.median(walls[1]):10.3f} {statistics.median(wall):7.3f} "
