@@ -34,6 +34,14 @@ class _OneThread(ThreadPoolExecutor):
         super().__init__(max_workers=1)
 
 
+def quartiles(values: list[float]) -> tuple[float, float]:
+    """First and third quartiles; a single value is its own (``--rounds 1``: a smoke run)."""
+    if len(values) < 2:
+        return values[0], values[0]
+    q1, _, q3 = statistics.quantiles(values, n=4)
+    return q1, q3
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=15)
@@ -71,9 +79,9 @@ def main() -> None:
     names = list(cases)
     for slow, fast in zip(names[::2], names[1::2], strict=True):
         ratios = [b / a for a, b in zip(times[slow], times[fast], strict=True)]
-        q = statistics.quantiles(ratios, n=4)
+        q1, q3 = quartiles(ratios)
         print(f"{fast} / {slow.split(', ')[-1]}: {statistics.median(ratios):.2f} "
-              f"({q[0]:.2f}-{q[2]:.2f})")
+              f"({q1:.2f}-{q3:.2f})")
 
 
 if __name__ == "__main__":
