@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
+
 #: (label, function name as cProfile lists it (file suffix, name)), in the order printed.
 PARTS = [
     ("renders (render_film)", ("mcrt/core/render.py", "render_film")),
@@ -35,7 +37,8 @@ PARTS = [
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("config", nargs="?", default="configs/quick.toml", type=Path)
+    parser.add_argument("config", nargs="?", default=ROOT / "configs" / "quick.toml", type=Path,
+                        help="a study configuration (default: the repository's configs/quick.toml)")
     args = parser.parse_args()
     import drjit as dr
 
@@ -65,10 +68,11 @@ def main() -> None:
 def _run(mcrt_main, config: Path, out: Path) -> None:
     try:
         with contextlib.redirect_stdout(io.StringIO()):  # (the study's own summary)
-            mcrt_main(["-q", "compare", str(config), "-o", str(out)])
+            code = mcrt_main(["-q", "compare", str(config), "-o", str(out)])
     except SystemExit as stop:
-        if stop.code not in (0, None):
-            raise
+        code = stop.code
+    if code not in (0, None):  # (mcrt's main returns its exit status; its error is printed)
+        raise SystemExit(f"mcrt -q compare {config} failed (exit status {code})")
 
 
 if __name__ == "__main__":
