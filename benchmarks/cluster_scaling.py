@@ -3,7 +3,7 @@ process and on ``local:1`` / ``local:2`` clusters, side by side.
 
 Modes (each timed after a warm-up run that compiles kernels and plans scenes):
 
-* ``here:1`` / ``here:2``: in this process with 1 / 2 Dr.Jit threads;
+* ``here:1`` / ``here:C``: in this process with 1 / C Dr.Jit threads (C = ``os.cpu_count()``);
 * ``local:1`` / ``local:2``: a LocalCluster of 1 / 2 worker processes with cores / N
   Dr.Jit threads each: on 2 cores, one worker with 2 threads / two with 1 (cluster
   start-up is timed separately, not in the runs).
@@ -11,11 +11,11 @@ Modes (each timed after a warm-up run that compiles kernels and plans scenes):
 Rounds are interleaved (every mode once per round, shuffled: mcrt.core.timing), ratios
 are medians. Prints:
 
-* the **per-task overhead** of the cluster: ``(local:1 - here:2) / tasks`` (the
+* the **per-task overhead** of the cluster: ``(local:1 - here:C) / tasks`` (the
   same threads, the same tasks: what scheduling, transfers and the client's fold
   add per task), for the reference and the study, and as a share of a task;
 * **throughput** (tasks/s, samples/s) and **speed-up** of ``local:2`` against
-  ``here:2`` (goal: within 1.1x) and against ``here:1``;
+  ``here:C`` (goal: within 1.1x) and against ``here:1``;
 * the study's times in each mode.
 
     python benchmarks/cluster_scaling.py [--rounds 3] [--res 128] [--spp 1024]
@@ -89,7 +89,7 @@ def main() -> None:
 
     def reference(mode: str) -> float:
         executor, threads = modes[mode]
-        dr.set_thread_count(threads if executor is None else 2)
+        dr.set_thread_count(threads)  # (cluster modes: this client's own threads)
         t = time.perf_counter()
         get_reference(CORNELL, params, spp=args.spp, spp_per_pass=args.spp_per_pass,
                       cache=False, executor=executor)
@@ -97,7 +97,7 @@ def main() -> None:
 
     def study(mode: str) -> float:
         executor, threads = modes[mode]
-        dr.set_thread_count(threads if executor is None else 2)
+        dr.set_thread_count(threads)  # (cluster modes: this client's own threads)
         t = time.perf_counter()
         run_study(config, executor=executor)
         return time.perf_counter() - t
