@@ -57,6 +57,15 @@ def busy_for(seconds: float, count: int) -> None:
         p.wait()
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity: ``taskset``, a cpuset), as
+    :func:`mcrt.core.timing.machine` counts them; else every core."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def run(config: Path, out: Path, env: dict[str, str], busy: int, busy_start: float,
         busy_seconds: float) -> tuple[dict, float]:
     """One study; with ``busy`` > 0, that many spinning processes from
@@ -87,8 +96,9 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--min-spp", type=int, default=16)
-    p.add_argument("--busy", type=int, default=os.cpu_count() or 2,
-                   help="spinning processes during the loaded run (default: one per core)")
+    p.add_argument("--busy", type=int, default=usable_cores(),
+                   help="spinning processes during the loaded run (default: one per core "
+                        "this process may run on, %(default)s here)")
     args = p.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
