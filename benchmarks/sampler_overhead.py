@@ -21,7 +21,9 @@ and a generator registered with ``mcrt.register_sampler``) are timed against
 from __future__ import annotations
 
 import argparse
+import atexit
 import itertools
+import shutil
 import statistics
 import tempfile
 from collections.abc import Callable, Iterator
@@ -98,7 +100,8 @@ def main() -> None:
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--only", default="", help="comma-separated sampler types to time")
     args = parser.parse_args()
-    folder = Path(tempfile.mkdtemp(prefix="mcrt-overhead-"))
+    folder = Path(tempfile.mkdtemp(prefix="mcrt-overhead-"))  # the point-set files
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
     pairs = [*PAIRS, *user_pairs(args.spp, folder)]
     if args.only:
         pairs = [p for p in pairs if p[0]["type"] in args.only.split(",")]
