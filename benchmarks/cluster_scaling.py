@@ -25,7 +25,9 @@ are medians. Prints:
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
+import shutil
 import statistics
 import tempfile
 import time
@@ -63,7 +65,9 @@ def main() -> None:
     if args.quick:
         args.rounds, args.res, args.spp, args.spp_per_pass, args.study_res = 1, 32, 64, 16, 32
 
-    os.environ.setdefault("MCRT_CACHE_DIR", tempfile.mkdtemp(prefix="mcrt_scaling_"))
+    work = Path(tempfile.mkdtemp(prefix="mcrt_scaling_"))  # the study's config; the cache
+    atexit.register(shutil.rmtree, work, ignore_errors=True)
+    os.environ.setdefault("MCRT_CACHE_DIR", str(work / "cache"))  # (unless the user's is set)
     import drjit as dr
 
     import mcrt  # noqa: F401
@@ -72,7 +76,7 @@ def main() -> None:
     from mcrt.core.cluster import DaskExecutor
     from mcrt.core.timing import round_orders
 
-    config_path = Path(os.environ["MCRT_CACHE_DIR"]) / "scaling.toml"
+    config_path = work / "scaling.toml"
     config_path.write_text(STUDY.format(scene=CORNELL, res=args.study_res))
     config = load_config(config_path)
     params = {"res": str(args.res)}
