@@ -1,8 +1,8 @@
 """Every benchmark script starts, and takes every option BENCHMARKS.md quotes for it.
 
-Each ``benchmarks/*.py`` runs with ``--help`` in a subprocess (all of them at once,
-from a directory outside the repository: a script must not depend on the working
-directory to import), which must exit 0. The options of each command that
+Each ``benchmarks/*.py`` runs with ``--help`` in a subprocess, from a directory
+outside the repository (a script must not depend on the working directory to
+import), and must exit 0. The options of each command that
 BENCHMARKS.md quotes - its code lines ``python benchmarks/X.py ...`` (continued
 by a trailing backslash) and its inline code spans that name ``X.py`` with options
 - and of the ``python benchmarks/X.py ...`` lines of the scripts' own docstrings
@@ -12,11 +12,11 @@ must all be in that script's help. Comments (``# ...``) are not options.
 from __future__ import annotations
 
 import ast
+import functools
 import os
 import re
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -73,6 +73,7 @@ def quoted_commands(text: str, source: str) -> list[tuple[str, str, list[str]]]:
     return found
 
 
+@functools.cache
 def all_quoted() -> list[tuple[str, str, list[str]]]:
     """BENCHMARKS.md's commands, then those of the scripts' docstrings."""
     commands = quoted_commands((ROOT / "BENCHMARKS.md").read_text(encoding="utf-8"),
@@ -82,20 +83,6 @@ def all_quoted() -> list[tuple[str, str, list[str]]]:
         doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
         commands += quoted_commands(doc, f"benchmarks/{name}.py (docstring)")
     return commands
-
-
-@pytest.fixture(scope="module")
-def helps(tmp_path_factory: pytest.TempPathFactory) -> dict[str, subprocess.CompletedProcess]:
-    """Every script's ``--help``, run concurrently from an empty directory."""
-    cwd = tmp_path_factory.mktemp("benchmarks_cwd")
-    env = {**os.environ, "MCRT_CACHE_DIR": str(cwd / "cache"), "MPLBACKEND": "Agg"}
-
-    def run(name: str) -> subprocess.CompletedProcess:
-        return subprocess.run([sys.executable, str(BENCHMARKS / f"{name}.py"), "--help"],
-                              cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
-
-    with ThreadPoolExecutor(max_workers=max(4, os.cpu_count() or 1)) as pool:
-        return dict(zip(SCRIPTS, pool.map(run, SCRIPTS), strict=True))
 
 
 def test_benchmark_md_quotes_commands() -> None:
@@ -112,8 +99,12 @@ def test_benchmark_md_quotes_commands() -> None:
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_help_lists_quoted_options(name: str, helps: dict) -> None:
-    done = helps[name]
+def test_help_lists_quoted_options(name: str, tmp_path: Path) -> None:
+    """``--help`` from an empty directory (~0.4 s a script; one process each, so
+    that pytest's workers share them out)."""
+    env = {**os.environ, "MCRT_CACHE_DIR": str(tmp_path / "cache"), "MPLBACKEND": "Agg"}
+    done = subprocess.run([sys.executable, str(BENCHMARKS / f"{name}.py"), "--help"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, f"{name}.py --help exit {done.returncode}:\n{done.stderr[-3000:]}"
     available = set(OPTION.findall(done.stdout))
     missing = [(where, opt) for where, script, opts in all_quoted() if script == name
