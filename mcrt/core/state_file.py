@@ -247,6 +247,7 @@ class CheckpointStore:
         self.job = job
         self.saved: Path | None = None
         self.foreign: set[Path] = set()
+        self.failed: set[Path] = set()  # noted once; periodic saves skip them
         self.periodic = Saving("the checkpoint", "checkpoints are off for this run; an "
                                "interruption loses the passes since the last one")
 
@@ -283,16 +284,20 @@ class CheckpointStore:
         recorded = found[0].get("cwd")
         return recorded is None or recorded == _cwd()
 
-    def save(self, checkpoint: Checkpoint) -> Path | None:
-        """Save to the first writable path; None (with a note) if none works.
+    def save(self, checkpoint: Checkpoint, retry: bool = True) -> Path | None:
+        """Save to the first writable path; None if none works. A path that
+        fails is noted once and, without ``retry``, not tried again (a read-only
+        output directory used to cost a failed write and a note every pass).
         The job's checkpoints at the other paths (older) are removed."""
         for path in self.paths:
-            if path in self.foreign:
+            if path in self.foreign or (path in self.failed and not retry):
                 continue
             try:
                 checkpoint.save(path, self.key, self.job)
             except (McrtError, OSError) as error:
-                log.warning("cannot save the checkpoint to %s (%s)", path, error)
+                if path not in self.failed:
+                    self.failed.add(path)
+                    log.warning("cannot save the checkpoint to %s (%s)", path, error)
                 continue
             self.saved = path
             self._remove_older(path)
@@ -320,7 +325,7 @@ class CheckpointStore:
         the job goes on without them, with one note (:class:`Saving`)."""
 
         def write() -> None:
-            if self.save(checkpoint) is None:
+            if self.save(checkpoint, retry=False) is None:
                 raise McrtError("no place could take it")
 
         self.periodic(write)

@@ -283,9 +283,9 @@ def small_disk(tmp_path):
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
 
 
-def _fill(directory: Path) -> Path:
+def _fill(directory: Path, name: str = "filler") -> Path:
     """Fill ``directory``'s file system to the last byte with one file."""
-    filler = directory / "filler"
+    filler = directory / name
     with open(filler, "wb", buffering=0) as f:
         for block in (1 << 16, 512):
             try:
@@ -299,7 +299,8 @@ def _fill(directory: Path) -> Path:
 def test_a_full_disk_keeps_the_finished_render_and_the_rerun_takes_it(
         tmp_path, cache, capsys, monkeypatch, small_disk):
     """The disk of the outputs fills up after the render's first checkpoint (a
-    real ENOSPC from a 4 MiB tmpfs): the later checkpoints and the finished
+    real ENOSPC from a 4 MiB tmpfs), and again after every later one (the
+    space the first one freed is taken): the later checkpoints and the finished
     render go to the cache, the message says so, and once space is freed the
     same command writes the outputs without rendering again (it used to resume
     from the first checkpoint, left next to the output, and render the rest)."""
@@ -314,8 +315,7 @@ def test_a_full_disk_keeps_the_finished_render_and_the_rerun_takes_it(
 
     def save_then_fill(store, checkpoint):
         real_save(store, checkpoint)
-        if not filler:
-            filler.append(_fill(small_disk))
+        filler.append(_fill(small_disk, f"filler{len(filler)}"))
 
     with monkeypatch.context() as patch:
         patch.setattr(CheckpointStore, "save_periodic", save_then_fill)
@@ -326,7 +326,8 @@ def test_a_full_disk_keeps_the_finished_render_and_the_rerun_takes_it(
     assert kept.is_file() and cache in kept.parents
     assert not list(small_disk.glob(".img.exr.mcrt-resume.npz")), \
         "the older checkpoint next to the output is left"
-    filler[0].unlink()  # "free some space"
+    for path in filler:  # "free some space"
+        path.unlink()
     traced: list[int] = []
     real = engine.trace_pass
     monkeypatch.setattr(engine, "trace_pass",

@@ -1,0 +1,80 @@
+"""Faults found by a sweep under real limits: a file system made read-only in
+the middle of a render (a real tmpfs, remounted)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT, run_cli
+
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
+
+CORNELL = ROOT / "scenes" / "cornell_box.xml"
+
+
+def _mount(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["mount", *args], capture_output=True, text=True)
+
+
+@pytest.fixture
+def disk(tmp_path):
+    """A 16 MiB tmpfs at ``tmp_path/disk`` (root and mount(2) needed: skipped
+    otherwise), unmounted afterwards."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    done = _mount("-t", "tmpfs", "-o", "size=16m", "tmpfs", str(disk))
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode})")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+def _read_only(disk: Path, on: bool = True) -> None:
+    done = _mount("-o", f"remount,{'ro' if on else 'rw'}", str(disk))
+    assert done.returncode == 0, done.stderr
+
+
+def test_an_output_directory_made_read_only_mid_render_is_noted_once(
+        tmp_path, cache, capsys, monkeypatch, disk):
+    """The output's file system turns read-only after the first checkpoint: the
+    later checkpoints go to the cache with one note (every pass used to try the
+    output directory again and print the note again: 8 passes, 8 notes), the
+    finished render is kept there, and the rerun writes it without rendering."""
+    from mcrt.core import engine
+    from mcrt.core.job import CheckpointStore
+
+    monkeypatch.setenv("MCRT_CHECKPOINT_SECONDS", "0")  # a checkpoint after every pass
+    args = ["render", str(CORNELL), "-D", "res=64", "--spp", "2048",
+            "--sampler", "sobol", "-o", str(disk / "img")]
+    real_save = CheckpointStore.save_periodic
+    turned: list[bool] = []
+
+    def save_then_freeze(store, checkpoint):
+        real_save(store, checkpoint)
+        if not turned:
+            turned.append(True)
+            _read_only(disk)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(CheckpointStore, "save_periodic", save_then_freeze)
+        code, _, err = run_cli(capsys, *args)
+    assert code == 2 and "Traceback" not in err, err
+    notes = [line for line in err.splitlines() if "cannot save the checkpoint" in line]
+    assert len(notes) == 1 and "read-only file system" in notes[0], err
+    line = [line for line in err.splitlines() if line.startswith("mcrt: error:")]
+    assert len(line) == 1 and "read-only file system" in line[0], err
+    kept = Path(line[0].split("kept in ")[1].split(":")[0])
+    assert kept.is_file() and cache in kept.parents
+    _read_only(disk, on=False)
+    traced: list[int] = []
+    real = engine.trace_pass
+    monkeypatch.setattr(engine, "trace_pass",
+                        lambda *a, **k: (traced.append(1), real(*a, **k))[1])
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0 and traced == [], err  # written without rendering again
+    assert (disk / "img.exr").is_file() and not kept.exists()
