@@ -1,11 +1,16 @@
 """Faults found by a sweep under real limits: a file system made read-only in
-the middle of a render (a real tmpfs, remounted)."""
+the middle of a render (a real tmpfs, remounted); a Dask worker killed while
+another fetches a result from it (a real ``local:2`` cluster)."""
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.conftest import ROOT, run_cli
@@ -78,3 +83,34 @@ def test_an_output_directory_made_read_only_mid_render_is_noted_once(
     code, _, err = run_cli(capsys, *args)
     assert code == 0 and traced == [], err  # written without rendering again
     assert (disk / "img.exr").is_file() and not kept.exists()
+
+
+def test_a_worker_killed_while_another_fetches_from_it_prints_nothing(capfd):
+    """A worker's peer dies while it fetches a task's result from it (a study's
+    shared input from a worker killed or out of memory): Dask's workers logged
+    "distributed.worker - ERROR - Worker stream died during communication" and
+    two tracebacks straight to the terminal (the worker processes' own stderr,
+    which mcrt's silencing in the client does not reach). The job still gets
+    its result."""
+    pytest.importorskip("distributed")
+    from distributed import wait
+
+    from mcrt.core.cluster import DaskExecutor
+
+    executor = DaskExecutor.connect("local:2")
+    try:
+        client = executor.client
+        holder, fetcher = sorted(client.scheduler_info()["workers"])
+        pid = client.run(os.getpid, workers=[holder])[holder]
+        big = client.submit(np.ones, 64 << 20, workers=[holder], allow_other_workers=True,
+                            pure=False)  # 512 MiB
+        wait([big])
+        fetched = client.submit(np.size, big, workers=[fetcher], allow_other_workers=True)
+        time.sleep(0.2)  # the transfer has started (it takes about a second)
+        os.kill(pid, signal.SIGKILL)
+        assert fetched.result(timeout=60) == 64 << 20
+        time.sleep(1)  # what the workers would print has come
+    finally:
+        executor.close()
+    out, err = capfd.readouterr()
+    assert "Traceback" not in err and "distributed." not in err, err
