@@ -244,7 +244,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     if cache:  # room for the partial and the finished state (and a temporary copy)
         remove_stale_temporaries(setup.finished.parent)
         check_free_space(setup.finished.parent, 3 * STATE_BYTES_PER_PIXEL * width * height,
-                         "the reference cache files")
+                         "the reference cache files", STATE_BYTES_PER_PIXEL * width * height)
     if hooks.before_work is not None:
         hooks.before_work(width, height)
     start: StatsRender | None = None

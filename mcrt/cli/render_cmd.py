@@ -431,4 +431,5 @@ def check_output_space(directory: Path, scene) -> None:
     film = scene.sensors()[0].film()
     width, height = (int(v) for v in film_grid_size(film))
     channels = 5
-    check_free_space(directory, width * height * (channels * 4 + 4 + channels * 8) + (1 << 20))
+    check_free_space(directory, width * height * (channels * 4 + 4 + channels * 8) + (1 << 20),
+                     largest=width * height * channels * 8)  # the checkpoint's float64 sums

@@ -43,7 +43,7 @@ class ImageIOError(McrtError):
 #: Causes a writer may give only in words (OpenEXR says ``No space left on
 #: device.`` in its own exception), as ``os.strerror`` and :func:`_reason` put them.
 _CAUSES_IN_WORDS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
-                    errno.ENOMEM)
+                    errno.ENOMEM, errno.EFBIG)
 _REASONS_IN_WORDS = {"no space left on device": errno.ENOSPC,
                      "disk quota exceeded": errno.EDQUOT,
                      "read-only file system": errno.EROFS, "permission denied": errno.EACCES}
@@ -73,6 +73,8 @@ def remedy(error: BaseException) -> str:
         return "make the file system writable (or write elsewhere with -o)"
     if code in (errno.EACCES, errno.EPERM):
         return "fix the permissions (or write elsewhere with -o)"
+    if code == errno.EFBIG:
+        return "raise the file size limit (ulimit -f)"
     return "fix the cause"
 
 
@@ -93,6 +95,8 @@ def _reason(exc: OSError) -> str:
         return "no space left on device"
     if code == errno.EDQUOT:
         return "disk quota exceeded"
+    if code == errno.EFBIG:
+        return "file too large (over the file size limit, ulimit -f)"
     return exc.strerror or str(exc)
 
 
@@ -356,11 +360,14 @@ def _unusable(path: Path) -> str | None:
     return None
 
 
-def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the outputs") -> None:
+def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the outputs",
+                     largest: int = 0) -> None:
     """Refuse to start when ``directory`` (or its nearest existing parent) has
-    less than ``needed`` bytes free, or when it cannot be created or written
-    (naming ``$MCRT_CACHE_DIR`` when the path came from it): one-line
-    :class:`McrtError`."""
+    less than ``needed`` bytes free, when it cannot be created or written
+    (naming ``$MCRT_CACHE_DIR`` when the path came from it), or when the file
+    size limit (``ulimit -f``) is below ``largest``, the largest file to
+    write: one-line :class:`McrtError`."""
+    check_file_size_limit(largest, what)
     path = Path(directory).absolute()
     while not path.exists() and path != path.parent:
         path = path.parent
@@ -378,3 +385,19 @@ def check_free_space(directory: str | os.PathLike, needed: int, what: str = "the
     if free < needed:
         raise McrtError(f"not enough free space in {directory}: {what} need about "
                         f"{needed / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")
+
+
+def check_file_size_limit(largest: int, what: str = "the outputs") -> None:
+    """Refuse to start when the file size limit (``RLIMIT_FSIZE``, ``ulimit
+    -f``) is below ``largest`` bytes: every write of such a file fails with
+    ``EFBIG``, the checkpoints that would keep the work included, so the work
+    would be done and then lost."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if largest and limit != resource.RLIM_INFINITY and limit < largest + (64 << 10):
+        raise McrtError(f"the file size limit (ulimit -f) is {limit / 2**20:.1f} MiB, and "
+                        f"{what} include a file of about {largest / 2**20:.1f} MiB: raise "
+                        f"it (ulimit -f unlimited), or render a smaller image")

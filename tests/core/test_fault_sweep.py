@@ -1,19 +1,23 @@
 """Faults found by a sweep under real limits: a file system made read-only in
 the middle of a render (a real tmpfs, remounted); a Dask worker killed while
-another fetches a result from it (a real ``local:2`` cluster)."""
+another fetches a result from it (a real ``local:2`` cluster); a file size
+limit (``ulimit -f``) below the size of a checkpoint."""
 
 from __future__ import annotations
 
+import errno
 import os
+import resource
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.conftest import ROOT, run_cli
+from tests.conftest import ROOT, TINY_SCENE, run_cli
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
@@ -114,3 +118,34 @@ def test_a_worker_killed_while_another_fetches_from_it_prints_nothing(capfd):
         executor.close()
     out, err = capfd.readouterr()
     assert "Traceback" not in err and "distributed." not in err, err
+
+
+@pytest.mark.parametrize("command", ["render", "reference"])
+def test_a_file_size_limit_below_the_checkpoint_is_refused_before_work(tmp_path, command):
+    """Under ``ulimit -f`` smaller than a checkpoint, every save fails (EFBIG, in
+    the cache too): the render was traced, then lost with "File too large",
+    its checkpoints and outputs all refused. Now one line before any work,
+    naming the limit."""
+    scene = tmp_path / "tiny.xml"
+    scene.write_text(TINY_SCENE)  # 32x32: a checkpoint of 40 KiB, a reference state of 64
+    out = tmp_path / "out"
+    args = {"render": ["render", str(scene), "--spp", "16", "-o", f"{out}/"],
+            "reference": ["reference", str(scene), "--spp", "64", "-o", f"{out}/"]}[command]
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (16 << 10, resource.RLIM_INFINITY))
+
+    done = subprocess.run([sys.executable, "-m", "mcrt", "-q", *args], cwd=tmp_path,
+                          env={**os.environ, "MCRT_CACHE_DIR": str(tmp_path / "cache")},
+                          preexec_fn=limit, capture_output=True, text=True, timeout=120)
+    lines = [line for line in done.stderr.splitlines() if not line.startswith("mcrt: note:")]
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert "file size limit (ulimit -f)" in lines[0], done.stderr
+    assert not out.exists() or not [p for p in out.rglob("*") if p.is_file()]
+
+
+def test_a_file_too_large_names_the_limit():
+    from mcrt.core.atomic import remedy, write_error
+
+    error = write_error("out/img.exr", OSError(errno.EFBIG, "File too large"))
+    assert "ulimit -f" in str(error) and "ulimit -f" in remedy(error)
