@@ -182,7 +182,7 @@ class DaskExecutor:
             if local:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address="127.0.0.1:0",  # this machine only
-                                       silence_logs=_SILENT)
+                                       silence_logs=_SILENT, preload=["mcrt.core.local_workers"])
                 client = Client(cluster)
                 quiet.apply()  # the loggers made while the cluster started
                 log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,

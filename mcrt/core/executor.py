@@ -66,4 +66,8 @@ def executor_for(address: str | None) -> Any:
         return InProcess()
     from .cluster import DaskExecutor
 
+    if address.strip().startswith("local"):  # its processes are this command's children
+        from .local_workers import start_resource_tracker
+
+        start_resource_tracker()
     return DaskExecutor.connect(address)

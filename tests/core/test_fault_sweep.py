@@ -1,7 +1,8 @@
 """Faults found by a sweep under real limits: a file system made read-only in
 the middle of a render (a real tmpfs, remounted); a Dask worker killed while
 another fetches a result from it (a real ``local:2`` cluster); a file size
-limit (``ulimit -f``) below the size of a checkpoint."""
+limit (``ulimit -f``) below the size of a checkpoint; a terminal's Ctrl-C or
+SIGHUP, sent to the whole process group of a command on a ``local:2`` cluster."""
 
 from __future__ import annotations
 
@@ -149,3 +150,43 @@ def test_a_file_too_large_names_the_limit():
 
     error = write_error("out/img.exr", OSError(errno.EFBIG, "File too large"))
     assert "ulimit -f" in str(error) and "ulimit -f" in remedy(error)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGHUP], ids=["ctrl-c", "hangup"])
+def test_a_terminal_signal_to_a_local_cluster_s_group_is_one_line(tmp_path, signum):
+    """Ctrl-C in a terminal (or closing it: SIGHUP) signals the command's whole
+    process group, which held a ``local`` cluster's worker processes and
+    multiprocessing's resource tracker: each worker printed its own
+    ``KeyboardInterrupt`` traceback, and a tracker killed by SIGHUP came back
+    with a warning and a ``KeyError`` traceback per resource. The command alone
+    handles the signal now: the partial reference, one line, exit 130, no
+    process left behind; the same command resumes it."""
+    pytest.importorskip("distributed")
+    scene = tmp_path / "t.xml"
+    scene.write_text(TINY_SCENE.replace('value="32"', 'value="128"'))
+    cache = tmp_path / "cache"
+    args = [sys.executable, "-m", "mcrt", "reference", str(scene), "--spp", "65536",
+            "--spp-per-pass", "256", "--cluster", "local:2", "-o", str(tmp_path / "r.exr")]
+    env = {**os.environ, "MCRT_CACHE_DIR": str(cache)}
+    child = subprocess.Popen(args, cwd=tmp_path, env=env, start_new_session=True,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 90
+        while not list(cache.glob("reference/*.partial.npz")) and child.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = subprocess.run(["pgrep", "-P", str(child.pid)], capture_output=True,
+                                 text=True).stdout.split()
+        assert child.poll() is None and workers, "the reference ended before the signal"
+        os.killpg(child.pid, signum)  # the terminal's way: the whole group
+        out, _ = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 130 and "interrupted" in out, out
+    assert "Traceback" not in out and "resource_tracker" not in out, out
+    time.sleep(2)  # the workers end with the command
+    left = [pid for pid in workers if Path(f"/proc/{pid}").exists()
+            and "zombie" not in Path(f"/proc/{pid}/status").read_text().lower()]
+    assert not left, f"processes left behind: {left}"
