@@ -209,11 +209,11 @@ def register_class(cls: type, name: str | None = None, *, origin: str = "",
         _check_plugin_name(name, source.origin)
         source.registered.append(name)
         _SOURCE_ORIGINS.add(source.origin)
+    origin = origin or cls.__module__
+    if kind != "mcrt" and not fingerprint:  # the user's class, not the subclass below
+        fingerprint = code_fingerprint(cls, origin)
     if getattr(cls, "plugin_name", name) != name:
         cls = type(cls.__name__, (cls,), {"plugin_name": name})
-    origin = origin or cls.__module__
-    if kind != "mcrt" and not fingerprint:
-        fingerprint = code_fingerprint(cls, origin)
     _add(SamplerInfo(name, kind, _summary_of(cls), claims_of(cls), origin,
                      example if example is not None else getattr(cls, "example_params", None),
                      fingerprint),
