@@ -30,6 +30,9 @@ Traced instead (the reason said once at debug level on ``mcrt.render``):
 * Mitsuba's samplers that keep random state per lane between passes
   (``stratified``, ``multijitter``, ...: only ``independent`` is seeded afresh
   by each pass);
+* a user's sampler holding numpy arrays and no ``frozen_inputs()``
+  (:func:`mcrt.core.traced_state.why_not`), or one whose Python state a trace
+  changes (a call counter: seeding does not set it back), seen as it records;
 * integrators that work on the host; other accumulators than the film's
   (statistics renders, references); and whatever fails to record (remembered
   for the process).
@@ -58,6 +61,8 @@ from .engine import (
 )
 from .sampling import bind_film_width, sampler_name
 from .trace import pixel_of_index, trace
+from .traced_state import sampler_key
+from .traced_state import why_not as sampler_why_not
 
 #: Most float64 sums a film may have for its passes to be replayed: a replayed
 #: pass adds into a copy of them, which at 512x512 RGBA (2^20 values, 16 passes
@@ -126,6 +131,9 @@ def why_not(scene: mi.Scene, sampler: mi.Sampler, subframes: object = None,
             return f"the scene moves between passes ({why})"
     if not (is_mcrt_sampler(sampler) or reseeds_each_pass(sampler)):
         return f"Mitsuba's {sampler_name(sampler)} keeps random state per lane"
+    holds = sampler_why_not(sampler)
+    if holds is not None:
+        return holds
     integrator = sampling_integrator(scene)
     if not replay.replayable(integrator):
         return f"mcrt's {type(integrator).__name__} works on the host"
@@ -161,6 +169,7 @@ class PassReplay:
         # that numpy arrays map would be released by a host callback, which Dr.Jit
         # cannot record (it aborts the process).
         self.sampler.seed(0, 1)  # type: ignore[arg-type]  # the stub wants a UInt array
+        before = sampler_key(self.sampler)
         try:
             tables: tuple = getattr(self.sampler, "frozen_inputs", tuple)()
             # No cyclic collection while Dr.Jit records or replays (mcrt.core.replay).
@@ -177,6 +186,12 @@ class PassReplay:
             now.sampler = None
         accumulator.sums, accumulator.nonfinite = list(sums), nonfinite
         replay.put_outputs(sampling_integrator(self.scene), outputs)
+        self.sampler.seed(0, 1)  # type: ignore[arg-type]
+        if sampler_key(self.sampler) != before:  # this pass was traced (recorded) and is
+            # right; a replay of it would repeat the values it read, where a trace moves on
+            RECORDINGS.fail(self.kind, self.kind, RuntimeError(
+                "it changes its Python attributes while traced (a counter?), which a replay "
+                "would not"), f"passes of {sampler_name(self.sampler)}")
         return True
 
 

@@ -13,10 +13,11 @@ tests/core/test_replay.py).
 
 A recording is keyed by everything the traced code decides on the host: the
 scene object (kept alive by its entry, so its id is never reused), the sensor,
-the sampler's plugin, parameters, base seed and sample count (Mitsuba's samplers
-by what a clone of them draws, as some hide their base seed), the user's sampler
-code, the pass shape, the film's channels and the variant. The seed is the one
-input that changes. What cannot be replayed renders unfrozen, and the first
+the sampler's plugin, class, parameters, base seed and sample count (Mitsuba's
+samplers by what a clone of them draws, as some hide their base seed), the user's
+sampler code and the Python values it reads (:mod:`mcrt.core.traced_state`), the
+pass shape, the film's channels and the variant. The seed is the one input that
+changes. What cannot be replayed renders unfrozen, and the first
 render of each kind says why (a note on ``mcrt.render``):
 
 * renders that report or change something between passes: checkpoints, resumed
@@ -25,6 +26,8 @@ render of each kind says why (a note on ``mcrt.render``):
   than :data:`MAX_PASSES` passes (long enough for tracing not to matter);
 * integrators written in Python by mcrt (``multisample`` counts its shading
   evaluations on the host);
+* a user's sampler holding numpy arrays and no ``frozen_inputs()``
+  (:func:`mcrt.core.traced_state.why_not`);
 * whatever fails to record (e.g. a sampler that reads arrays on the host while
   tracing): it is remembered and never tried again in the process.
 
@@ -51,6 +54,8 @@ from .accumulators import FilmAccumulator
 from .engine import PassRun, PassShape, run_passes, sampling_integrator
 from .environ import env_switch
 from .sampling import sampler_fingerprint, sampler_name, sampler_params
+from .traced_state import sampler_key
+from .traced_state import why_not as sampler_why_not
 
 log = logging.getLogger("mcrt.render")
 
@@ -266,6 +271,10 @@ def render(scene: mi.Scene, sampler: mi.Sampler, shape: PassShape, seed: int, se
     """The render of ``scene`` with ``sampler`` (sample count set, film prepared)
     in passes of ``shape``, recorded or replayed; None if it cannot be (then
     render it unfrozen)."""
+    why = sampler_why_not(sampler)
+    if why is not None:
+        note(why)
+        return None
     key = render_key(scene, sampler, shape, sensor, channels)
     if key in _RECORDINGS.failed:
         return None
@@ -324,7 +333,8 @@ def render_key(scene: mi.Scene, sampler: mi.Sampler, shape: Any, sensor: int,
         identity = tuple(float(v) for v in probe.next_1d()) + (str(sampler),)
     params = tuple(sorted((k, repr(v)) for k, v in sampler_params(sampler).items()))
     return (mi.variant(), id(scene), sensor, name, params, identity, sampler.sample_count(),
-            sampler_fingerprint(name, sampler_params(sampler)), shape, channels)
+            sampler_fingerprint(name, sampler_params(sampler)), shape, channels,
+            *sampler_key(sampler))
 
 
 def reason(error: BaseException) -> str:

@@ -17,7 +17,9 @@ Traced as before (:func:`.wavefront.trace_wavefront`), the reason said once at
 debug level on ``mcrt.render`` (:func:`mcrt.core.replay.note`): ``MCRT_REPLAY=0``,
 Mitsuba's samplers (seeded per wavefront with sizes known on the host), an
 ``on_samples`` callback, mcrt's Python integrators, a sensor that is not one of
-the scene's, and whatever fails to record (remembered for the process).
+the scene's, a user's sampler holding numpy arrays and no ``frozen_inputs()``
+(:mod:`mcrt.core.traced_state`), and whatever fails to record (remembered for
+the process). The key holds the user's sampler's host values as the film's does.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from ...core import replay
 from ...core.replay import replayable
 from ...core.sampling import sampler_fingerprint, sampler_name, sampler_params
 from ...core.trace import film_grid_size, pixel_of_index, trace
+from ...core.traced_state import sampler_key
+from ...core.traced_state import why_not as sampler_why_not
 from ...core.upload import to_device
 from .sums import Pending, PixelSums, reduce_wavefront
 from .wavefront import Target, check_passes, rgb_alpha, sample_cells
@@ -88,6 +92,9 @@ def why_not(target: Target) -> str | None:
         return f"Mitsuba's {sampler_name(target.sampler)} is seeded per wavefront on the host"
     if target.on_samples is not None:
         return "on_samples receives the samples"
+    why = sampler_why_not(target.sampler)
+    if why is not None:
+        return why
     if not replayable(target.integrator):
         return f"mcrt's {type(target.integrator).__name__} works on the host"
     if not any(x is target.sensor for x in target.scene.sensors()):
@@ -163,7 +170,7 @@ def _kind(scene: mi.Scene, sensor: int, sampler: mi.Sampler, integrator: Any, sp
             tuple(sorted((k, repr(v)) for k, v in params.items())),
             getattr(sampler, "_base_seed", None), sampler_fingerprint(name, params),
             tuple(film_grid_size(film)), tuple(film.crop_offset()), spp, acc.s,
-            acc.channels, progressive)
+            acc.channels, progressive, *sampler_key(sampler))
 
 
 __all__ = ["LIMIT", "clear", "recordings", "why_not", "wavefront"]
