@@ -22,6 +22,7 @@ from typing import Any
 import mitsuba as mi
 
 from ..errors import SamplerError
+from ..samplers import registry
 from ..samplers.registry import names
 
 #: Plugin properties that are the render's settings, never sampler parameters,
@@ -127,9 +128,15 @@ def make_sampler(name: str, spp: int, base_seed: int = 0, **params: Any) -> mi.S
                                f"sampler parameter")
     own = {"seed": int(base_seed)} if base_seed else {}
     try:
-        return mi.load_dict({"type": name, "sample_count": int(spp), **own, **params})
+        sampler = mi.load_dict({"type": name, "sample_count": int(spp), **own, **params})
     except Exception as error:
         raise SamplerError(f"cannot create sampler {name!r}: {mitsuba_message(error)}") from None
+    lost = sorted(set(params) - set(sampler_params(sampler)))
+    if lost and registry.info(name).kind == "user":  # its fork() and clone() lose them too
+        raise SamplerError(f"{name}: its _parameters() does not return {', '.join(lost)}, so a "
+                           f"render elsewhere (a Dask worker, --from) would drop it: return "
+                           f"every parameter it reads from props")
+    return sampler
 
 
 def base_seed(sampler: mi.Sampler) -> int:

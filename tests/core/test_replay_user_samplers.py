@@ -2,8 +2,8 @@
 
 A replayed render runs the kernels recorded when the sampler was traced; the
 Python values its code read then are constants in them. Each case changes such
-a value between renders in one process (an attribute, a plugin parameter its
-``_parameters()`` leaves out, a module global, a class made by a factory) or
+a value between renders in one process (an attribute, a class attribute, a
+module global, a class made by a factory) or
 keeps state a trace changes, and compares every render with one made with
 ``MCRT_REPLAY=0``. Before :mod:`mcrt.core.traced_state` every case but the
 first replayed the image of the first value.
@@ -22,6 +22,7 @@ import mcrt
 from mcrt.core import pass_replay, replay
 from mcrt.core.render import render_film
 from mcrt.core.sampling import make_sampler
+from mcrt.errors import SamplerError
 from mcrt.samplers import McrtSampler, kit, registry
 from tests.conftest import ROOT, same_film, small_cornell
 
@@ -40,7 +41,7 @@ class _Base(McrtSampler):
 
 
 class Scaled(_Base):
-    """x * self.scale: an attribute (or a plugin parameter not in _parameters())."""
+    """x * self.scale: an attribute, or a plugin parameter."""
 
     scale = 1.0
 
@@ -48,9 +49,19 @@ class Scaled(_Base):
         if "scale" in props:
             self.scale = props["scale"]
 
+    def _parameters(self):
+        return {"scale": self.scale} if self.scale != 1.0 else {}
+
     def _sample_2d(self, key, sample, active):
         x, y = _point(key, sample)
         return mi.Point2f(x * self.scale, y)
+
+
+class Unreported(Scaled):
+    """Reads a parameter its _parameters() (so fork(), clone(), workers) leaves out."""
+
+    def _parameters(self):
+        return {}
 
 
 class ScaledByGlobal(_Base):
@@ -84,7 +95,7 @@ def _fresh():
     replay.clear()
     yield
     replay.clear()
-    for name in ("t_scaled", "t_global", "t_factory", "t_counting"):
+    for name in ("t_scaled", "t_unreported", "t_global", "t_factory", "t_counting"):
         if name in registry.names():
             registry.unregister(name)
 
@@ -101,6 +112,7 @@ def _same_as_traced(monkeypatch, scene, make, seeds=(0, 1, 2), **kwargs) -> None
 
 def test_an_attribute_or_unreported_parameter_changed_between_renders(monkeypatch):
     mcrt.register_sampler("t_scaled", sampler=Scaled)
+    mcrt.register_sampler("t_unreported", sampler=Unreported)
     scene = small_cornell(16, box_filter=True)
     _same_as_traced(monkeypatch, scene, lambda: make_sampler("t_scaled", 4))
     assert replay.recordings() >= 1  # the first value recorded, and replayed
@@ -111,6 +123,8 @@ def test_an_attribute_or_unreported_parameter_changed_between_renders(monkeypatc
         return sampler
     _same_as_traced(monkeypatch, scene, halved)
     _same_as_traced(monkeypatch, scene, lambda: make_sampler("t_scaled", 4, scale=0.25))
+    with pytest.raises(SamplerError, match="_parameters"):  # unreported: a worker drops it
+        make_sampler("t_unreported", 4, scale=0.25)
     monkeypatch.setattr(Scaled, "scale", 0.75)  # the class attribute
     _same_as_traced(monkeypatch, scene, lambda: make_sampler("t_scaled", 4))
 
