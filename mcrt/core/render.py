@@ -190,7 +190,8 @@ def _prepare(scene: mi.Scene, sampler: mi.Sampler | None, spp: int | None,
     integrator = sampling_integrator(scene)
     film = supported_film(sensor_obj.film())
     sampler = sampler if sampler is not None else sensor_obj.sampler()
-    if spp is not None:
+    if spp is not None and spp != sampler.sample_count():
+        sampler = sampler.clone()  # the caller's (or the scene's) keeps its count
         sampler.set_sample_count(spp)
     film.prepare(integrator.aov_names())
     return film, sampler, sampler.sample_count()
