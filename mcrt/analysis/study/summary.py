@@ -166,7 +166,7 @@ def _bias(per_seed: list[dict[str, Any]], ref_mean: np.ndarray, ref_var: np.ndar
     k = d.size
     value = float(d.mean())
     v_seed = float(d.var(ddof=1)) / k if k > 1 else 0.0
-    v_ref = bias(ref_mean, ref_mean, reference_variance=ref_var,
+    v_ref = bias(ref_mean, ref_mean, reference_variance=_known_variance(ref_var),
                  variance_factor=variance_factor, correlated_channels=True).standard_error ** 2
     se = math.sqrt(v_seed + v_ref)
     if se == 0:
@@ -175,6 +175,19 @@ def _bias(per_seed: list[dict[str, Any]], ref_mean: np.ndarray, ref_var: np.ndar
     df = k - 1.0 if k > 1 else math.inf
     half = t_quantile(0.975, df) * se
     return _Bias(value, value / se, df, value - half, value + half)
+
+
+def _known_variance(var: np.ndarray) -> np.ndarray:
+    """``var`` with its unknown values (NaN: a reference pixel with fewer than two
+    finite samples, e.g. one that sees an emitter of infinite radiance) replaced by
+    the mean of the known ones, as the noise floor averages over the known pixels
+    only; one such pixel made the reference's term, and so every cell's bias
+    interval and ``bias_z``, NaN, and the bias flag could never fire."""
+    var = np.asarray(var, dtype=np.float64)
+    known = np.isfinite(var)
+    if known.all():
+        return var
+    return np.where(known, var, float(var[known].mean()) if known.any() else 0.0)
 
 
 def retime_cell(cell: Cell, times: Sequence[Sample]) -> Cell:

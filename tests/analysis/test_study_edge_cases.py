@@ -1,0 +1,44 @@
+"""Studies of unusual but valid inputs: what a cell's figures say about them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mcrt.analysis.study import CellScores, ReferenceImage, SamplerSpec, summarise_cell
+from mcrt.core.stats import PixelStats
+
+
+def _cell(ref_var: np.ndarray, bias: float = 0.0):
+    rng = np.random.default_rng(3)
+    ref = rng.random((16, 16, 3))
+    renders = [ref + bias + rng.normal(0.0, 0.05, ref.shape) for _ in range(3)]
+    per_seed = [{"seed": s, "spp": 4, "seconds": 1e-3, "nonfinite": 0,
+                 "mse": float(np.mean((r - ref) ** 2)), "mean_error": float(np.mean(r - ref)),
+                 "rel_mse": 0.1, "delta_e": 1.0,
+                 "aliasing": {"ratio": 1.0, "ratio_z": 0.1, "peak": 2.0, "peak_z": -0.2}}
+                for s, r in enumerate(renders)]
+    known = ref_var[np.isfinite(ref_var)]
+    floor = float(np.mean(known)) if known.size else 0.0
+    return summarise_cell(CellScores("scene", SamplerSpec("jittered", "jittered", {}), 4,
+                                     per_seed, PixelStats.from_images(renders)),
+                          ReferenceImage(ref, ref_var, floor))
+
+
+def test_a_reference_pixel_without_a_standard_error_leaves_the_bias_measurable():
+    """A reference pixel with fewer than two finite samples (scenes/hard/degenerate.xml's
+    emitter of infinite radiance) has an unknown (NaN) standard error; the bias's
+    reference term takes the known pixels' mean there, as the noise floor does,
+    instead of turning every cell's bias interval and t statistic NaN (the bias flag
+    then could never fire on such a scene)."""
+    var = np.full((16, 16, 3), 1e-6)
+    known = _cell(var, bias=0.01)
+    var[2, 5] = np.nan
+    cell = _cell(var, bias=0.01)
+    for key in ("bias_z", "bias_low", "bias_high"):
+        assert math.isfinite(cell[key]), key
+        assert math.isclose(cell[key], known[key], rel_tol=1e-12), key
+    assert cell["bias_z"] > 5  # a 0.01 bias against 0.05 noise over 768 values
+    # No known pixel at all: the reference adds nothing it can state.
+    assert math.isfinite(_cell(np.full((16, 16, 3), np.nan))["bias_z"])
