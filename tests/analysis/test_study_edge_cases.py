@@ -42,3 +42,24 @@ def test_a_reference_pixel_without_a_standard_error_leaves_the_bias_measurable()
     assert cell["bias_z"] > 5  # a 0.01 bias against 0.05 noise over 768 values
     # No known pixel at all: the reference adds nothing it can state.
     assert math.isfinite(_cell(np.full((16, 16, 3), np.nan))["bias_z"])
+
+
+def test_a_fits_points_count_the_seeds_it_used():
+    """A seed whose MSE is at or below the reference's noise floor has no logarithm
+    of its excess, and the log-log fit leaves it out: ``points`` says how many
+    values the fit used (it said every seed's, 4 where 3 were used), and the slope
+    is the fit through the others (checked against numpy's polyfit of them)."""
+    from mcrt.analysis.study import fit_sampler
+
+    floor = 1e-4
+    cells = []
+    for spp, mses in ((4, [4e-3, 5e-3]), (16, [1e-3, 0.5e-4])):  # 0.5e-4 < the floor
+        per_seed = [{"mse": m} for m in mses]
+        cells.append({"scene": "s", "sampler": "j", "resolved": True, "spp": spp,
+                      "seconds": 0.01 * spp, "mse_floor": floor, "per_seed": per_seed,
+                      "efficiency": 1.0, "times": [0.01 * spp]})
+    fit = fit_sampler("s", "j", cells)
+    assert fit["points"] == 3
+    x = np.log10([4, 4, 16])
+    y = np.log10(np.array([4e-3, 5e-3, 1e-3]) - floor)
+    assert math.isclose(fit["slope_spp"], np.polyfit(x, y, 1)[0], rel_tol=1e-9)

@@ -186,9 +186,10 @@ FIT_FIELDS: tuple[Field, ...] = (
     Field("cells_used"),
     Field("cells"),
     Field("slope_spp", "least-squares slope of log10(mse_excess) vs log10(spp) over the "
-                       "resolved cells' per-seed values (slope_*_se: its OLS standard error; "
-                       "slope_*_low/high: its 95% interval, Student t on n - 2 degrees of "
-                       "freedom)",
+                       "resolved cells' per-seed values (a seed whose excess is not positive "
+                       "has no logarithm and is left out: points counts the values used; "
+                       "slope_*_se: its OLS standard error; slope_*_low/high: its 95% "
+                       "interval, Student t on n - 2 degrees of freedom)",
           column=Column("slope vs spp [95%]", "interval")),
     Field("slope_spp_se"),
     Field("slope_spp_low"),

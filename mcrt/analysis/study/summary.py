@@ -244,7 +244,10 @@ def fit_sampler(scene: str, sampler: str, cells: Sequence[Cell],
             x_spp.append(c["spp"])
             x_sec.append(c["seconds"])
             y.append(r["mse"] - c["mse_floor"])
-    out: dict[str, Any] = {"scene": scene, "sampler": sampler, "points": len(y),
+    # A seed whose excess is not positive has no logarithm: the fit leaves it out,
+    # and ``points`` counts the values it uses.
+    usable = sum(1 for v in y if math.isfinite(v) and v > 0)
+    out: dict[str, Any] = {"scene": scene, "sampler": sampler, "points": usable,
                            "cells_used": len(used), "cells": len(mine)}
     sample_counts = len({c["spp"] for c in used})
     for key, x in (("spp", x_spp), ("seconds", x_sec)):
