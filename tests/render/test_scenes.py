@@ -135,6 +135,44 @@ def test_scene_description_is_read_once_and_instantiated_afresh():
     assert list(a.sensors()[0].film().size()) == [8, 6]
 
 
+def test_a_library_error_of_the_loader_is_retried_serially(monkeypatch):
+    """Small descriptions are instantiated on the calling thread, large ones on
+    Mitsuba's threads; an error of the C++ library itself (a rare
+    ``basic_string::_M_create`` under parallel instantiation, which no rerun
+    reproduced, so it is simulated here) is retried once serially, while an error
+    in the scene is reported at once, not retried."""
+    from mcrt.render import scene as scene_module
+
+    desc = read_scene(CHECKER, {"width": "8", "height": "6"})
+    calls: list[bool] = []
+    build = scene_module.SceneDescription._build
+
+    def flaky(self, parallel):
+        calls.append(parallel)
+        if parallel:
+            raise RuntimeError("failed to instantiate sensor plugin: basic_string::_M_create")
+        return build(self, parallel)
+
+    monkeypatch.setattr(scene_module.SceneDescription, "_build", flaky)
+    assert len(desc.nodes) < scene_module.PARALLEL_NODES
+    assert list(desc.instantiate().sensors()[0].film().size()) == [8, 6]
+    assert calls == [False]  # a small scene: serial from the start
+    calls.clear()
+    monkeypatch.setattr(scene_module, "PARALLEL_NODES", 1)  # as a large scene
+    assert list(desc.instantiate().sensors()[0].film().size()) == [8, 6]
+    assert calls == [True, False]
+
+    def broken(self, parallel):
+        calls.append(parallel)
+        raise RuntimeError("Plugin \"nosuch\" not found")
+
+    calls.clear()
+    monkeypatch.setattr(scene_module.SceneDescription, "_build", broken)
+    with pytest.raises(SceneError, match="nosuch"):
+        desc.instantiate()
+    assert calls == [True]
+
+
 # ---------------------------------------------------- every scene x sampler
 @pytest.mark.parametrize("sampler", SAMPLERS)
 @pytest.mark.parametrize("name", list(SMALL))
