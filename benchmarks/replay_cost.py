@@ -45,7 +45,7 @@ import mcrt  # noqa: E402,F401  (registers the samplers)
 from mcrt.core import replay  # noqa: E402
 from mcrt.core.render import render_film  # noqa: E402
 from mcrt.core.sampling import make_sampler  # noqa: E402
-from mcrt.core.timing import run_interleaved  # noqa: E402
+from mcrt.core.timing import quartiles, run_interleaved  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -103,14 +103,6 @@ def row(res: int, spp: int, name: str, rounds: int) -> None:
 
     print(f"| {res}x{res}, {spp} spp | `{name}` | {ms[0]:.2f} | {ms[1]:.2f} | {ms[2]:.2f} | "
           f"{ratio(1, 0)} | {ratio(2, 0)} | {ratio(2, 1)} |", flush=True)
-
-
-def quartiles(values: list[float]) -> tuple[float, float]:
-    """First and third quartiles; a single value is its own (``--rounds 1``: a smoke run)."""
-    if len(values) < 2:
-        return values[0], values[0]
-    q1, _, q3 = statistics.quantiles(values, n=4)
-    return q1, q3
 
 
 def _untimed(value):

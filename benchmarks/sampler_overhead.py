@@ -35,7 +35,7 @@ import numpy as np
 
 import mcrt  # (registers the plugins)
 from mcrt.analysis.convergence import paired_time_ratio
-from mcrt.core.timing import run_interleaved
+from mcrt.core.timing import quartiles, run_interleaved
 from mcrt.samplers.point_sources import jittered_sets
 
 #: (ours, Mitsuba's equivalent)
@@ -83,14 +83,6 @@ def label(sampler: dict) -> str:
     extra = "".join(f" {k}={Path(v).name if k == 'filename' else v}"
                     for k, v in sampler.items() if k != "type")
     return sampler["type"] + extra
-
-
-def quartiles(values: list[float]) -> tuple[float, float]:
-    """First and third quartiles; a single value is its own (``--rounds 1``: a smoke run)."""
-    if len(values) < 2:
-        return values[0], values[0]
-    q1, _, q3 = statistics.quantiles(values, n=4)
-    return q1, q3
 
 
 def main() -> None:

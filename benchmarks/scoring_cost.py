@@ -27,19 +27,12 @@ import scipy.fft
 
 from mcrt.analysis import aliasing
 from mcrt.analysis.metrics import delta_e_2000, srgb_to_lab
+from mcrt.core.timing import quartiles
 
 
 class _OneThread(ThreadPoolExecutor):
     def __init__(self, max_workers: int | None = None) -> None:
         super().__init__(max_workers=1)
-
-
-def quartiles(values: list[float]) -> tuple[float, float]:
-    """First and third quartiles; a single value is its own (``--rounds 1``: a smoke run)."""
-    if len(values) < 2:
-        return values[0], values[0]
-    q1, _, q3 = statistics.quantiles(values, n=4)
-    return q1, q3
 
 
 def main() -> None:

@@ -235,6 +235,18 @@ class CostFit:
     r2: float
 
 
+def quartiles(values: Sequence[float]) -> tuple[float, float]:
+    """First and third quartiles (``statistics.quantiles``, exclusive method) of
+    the benchmarks' per-round ratios; a single value is its own (one round: a
+    smoke run)."""
+    import statistics
+
+    if len(values) < 2:
+        return values[0], values[0]
+    q1, _, q3 = statistics.quantiles(values, n=4)
+    return q1, q3
+
+
 def fit_cost(units: Sequence[float], seconds: Sequence[float]) -> CostFit:
     """The fixed and per-unit cost of a case timed at several sizes (``units``:
     samples, passes, ...); NaN with fewer than two distinct sizes. Standard
@@ -288,5 +300,5 @@ def machine() -> dict[str, Any]:
 
 
 __all__ = ["LOADED_SHARE", "OUTLIER_MIN", "OUTLIER_Z", "SPREAD_LIMIT", "CostFit", "Sample",
-           "TimingSummary", "fit_cost", "machine", "others_running", "round_orders",
+           "TimingSummary", "fit_cost", "machine", "others_running", "quartiles", "round_orders",
            "run_interleaved", "summarise", "timed"]

@@ -19,6 +19,7 @@ from mcrt.core.timing import (
     Sample,
     fit_cost,
     others_running,
+    quartiles,
     round_orders,
     run_interleaved,
     summarise,
@@ -127,3 +128,10 @@ def test_the_load_probe_sees_a_busy_process_and_not_our_own_threads():
     # The spinning process is runnable whenever it is sampled (on 2 cores it
     # may wait for the CPU, which still counts as runnable).
     assert sum(1 for s in seen if s and s >= 1) >= 18, seen
+
+
+def test_quartiles_of_the_benchmarks_ratios():
+    """The benchmarks' IQR: the exclusive-method quartiles (1..7: 2 and 6), and one
+    round's value as its own (a --rounds 1 smoke run died in statistics.quantiles)."""
+    assert quartiles([7.0, 1.0, 5.0, 3.0, 2.0, 6.0, 4.0]) == (2.0, 6.0)
+    assert quartiles([0.8]) == (0.8, 0.8)
