@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -164,6 +167,40 @@ def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
         code = exit_.code
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def rerun_renders_nothing(capsys, monkeypatch, *argv: str) -> tuple[int, str, str]:
+    """``run_cli`` of a command whose work was kept: asserts it exits 0 without
+    tracing a single pass (film or adaptive wavefront) and returns its output."""
+    from mcrt.core import engine
+
+    traced: list[int] = []
+    real = engine.trace_pass
+
+    def counted(*args, **kwargs):
+        traced.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(engine, "trace_pass", counted)
+    monkeypatch.setattr("mcrt.render.adaptive.wavefront.trace_pass", counted)
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 0 and traced == [], err  # written without rendering again
+    return code, out, err
+
+
+@contextmanager
+def tmpfs(path: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of ``size`` (e.g. ``"4m"``) mounted at ``path`` (made), unmounted
+    afterwards; the test is skipped where mount(2) is not allowed (not root)."""
+    path.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode})")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], capture_output=True)
 
 
 @pytest.fixture(autouse=True)

@@ -21,7 +21,15 @@ import pytest
 from mcrt.core import atomic
 from mcrt.core.job import Checkpointing
 from mcrt.core.memory import lane_budget
-from tests.conftest import CHECKERBOARD, ROOT, TINY_SCENE, run_cli, study_toml
+from tests.conftest import (
+    CHECKERBOARD,
+    ROOT,
+    TINY_SCENE,
+    rerun_renders_nothing,
+    run_cli,
+    study_toml,
+    tmpfs,
+)
 
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
 
@@ -98,14 +106,7 @@ def test_failed_output_write_keeps_the_render(tmp_path, cache, capsys, monkeypat
     assert "free some space" not in line or cause == errno.ENOSPC
     kept = Path(line.split("kept in ")[1].split(":")[0])
     assert kept.is_file()
-    traced: list[int] = []
-    from mcrt.core import engine
-    real = engine.trace_pass
-    patch_trace = lambda *a, **k: (traced.append(1), real(*a, **k))[1]  # noqa: E731
-    monkeypatch.setattr(engine, "trace_pass", patch_trace)
-    monkeypatch.setattr("mcrt.render.adaptive.wavefront.trace_pass", patch_trace)
-    code, _, err = run_cli(capsys, "-q", *args)
-    assert code == 0 and traced == [], err  # written without rendering again
+    rerun_renders_nothing(capsys, monkeypatch, "-q", *args)
 
 
 @pytest.mark.parametrize("command", ["render", "adaptive"])
@@ -269,18 +270,9 @@ def test_render_passes_shrink_only_to_fit_memory(monkeypatch):
 
 @pytest.fixture
 def small_disk(tmp_path):
-    """A tmpfs of 4 MiB at ``tmp_path/disk`` (root and mount(2) needed: skipped
-    otherwise), unmounted afterwards."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(disk)],
-                          capture_output=True, text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode})")
-    try:
-        yield disk
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+    """A 4 MiB tmpfs at ``tmp_path/disk`` (skipped where mount(2) is not allowed)."""
+    with tmpfs(tmp_path / "disk", "4m") as mounted:
+        yield mounted
 
 
 def _fill(directory: Path, name: str = "filler") -> Path:
@@ -304,7 +296,6 @@ def test_a_full_disk_keeps_the_finished_render_and_the_rerun_takes_it(
     render go to the cache, the message says so, and once space is freed the
     same command writes the outputs without rendering again (it used to resume
     from the first checkpoint, left next to the output, and render the rest)."""
-    from mcrt.core import engine
     from mcrt.core.job import CheckpointStore
 
     monkeypatch.setenv("MCRT_CHECKPOINT_SECONDS", "0")  # a checkpoint after every pass
@@ -328,12 +319,7 @@ def test_a_full_disk_keeps_the_finished_render_and_the_rerun_takes_it(
         "the older checkpoint next to the output is left"
     for path in filler:  # "free some space"
         path.unlink()
-    traced: list[int] = []
-    real = engine.trace_pass
-    monkeypatch.setattr(engine, "trace_pass",
-                        lambda *a, **k: (traced.append(1), real(*a, **k))[1])
-    code, out, err = run_cli(capsys, *args)
-    assert code == 0 and traced == [], err  # written without rendering again
+    rerun_renders_nothing(capsys, monkeypatch, *args)
     assert (small_disk / "img.exr").is_file() and not kept.exists()
 
 
