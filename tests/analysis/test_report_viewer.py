@@ -324,9 +324,18 @@ def _wait(browser, condition, seconds: float = 30):
     return WebDriverWait(browser, seconds, poll_frequency=0.02).until(lambda _: condition())
 
 
+def _load(browser, uri: str) -> None:
+    """Open ``uri`` as a new page (not a jump to its anchor) and wait until it is parsed:
+    ChromeDriver's get() has returned with a large report half parsed (one viewer of two
+    in the DOM) on a loaded CI machine."""
+    browser.get("about:blank")
+    browser.get(uri)
+    _wait(browser, lambda: browser.execute_script(
+        "return document.readyState === 'complete' && location.href === arguments[0];", uri))
+
+
 def _open(browser, files):
-    browser.get("about:blank")  # a new page, not a jump to its anchor
-    browser.get(files["report"].resolve().as_uri() + "#viewer-0")
+    _load(browser, files["report"].resolve().as_uri() + "#viewer-0")
     viewer = browser.find_element("css selector", ".mcrt-viewer")
     _wait(browser, lambda: viewer.get_attribute("data-ready") == "1")
     browser.execute_script("arguments[0].scrollIntoView(); arguments[0].focus();", viewer)
@@ -447,8 +456,7 @@ def test_a_large_report_loads_its_images_when_shown(large, browser):
     them again when shown. Timing goals: benchmarks/report_size.py."""
     files, result = large.files, large.result
     cells_per_scene = len(result.config.samplers) * len(result.config.spp)
-    browser.get("about:blank")
-    browser.get(files["report"].resolve().as_uri())
+    _load(browser, files["report"].resolve().as_uri())
     viewers = browser.find_elements("css selector", ".mcrt-viewer")
     assert len(viewers) == 2
     _wait(browser, lambda: all(v.get_attribute("data-ready") == "1" for v in viewers))
