@@ -89,6 +89,8 @@ class FilmAccumulator:
         crop = film.crop_offset()
         self.grid_origin = (int(crop[0]) - inset, int(crop[1]) - inset)
         self.channels = channels
+        #: The weight channel (:func:`~mcrt.core.engine.film_values`: R, G, B, [A,] W).
+        self.weight = 4 if mi.has_flag(film.flags(), mi.FilmFlags.Alpha) else 3
         rfilter = film.rfilter()
         self.box = bool(rfilter.is_box_filter()) and self.ext == self.grid \
             and self.origin == self.grid_origin
@@ -182,12 +184,24 @@ class FilmAccumulator:
 
     # -- results ----------------------------------------------------------------
     def develop(self) -> Any:
-        """Hand the sums to a cleared film and develop it (all on the device)."""
+        """Hand the sums to a cleared film and develop it (all on the device).
+
+        The film divides each channel by the weight channel (R, G, B, [A,] W) in
+        float32; the float64 sums are divided by their weight *before* they are
+        rounded to float32 (the film then divides by a weight of exactly 1), so a
+        pixel is its float64 mean correctly rounded: a float32 sum of a bright
+        pixel overflowed to +Inf (every sample 3e38, or 1e33 at 2^19 spp) while
+        its mean is finite, and was then developed as +Inf with no sample counted
+        non-finite. A pixel of weight 0 is handed over as it is."""
         w, h = self.ext
         flat = dr.zeros(mi.Float, w * h * self.channels)
         index = dr.arange(mi.UInt32, w * h) * self.channels
+        weight = self.sums[self.weight]
+        weighed = weight != 0
         for c, s in enumerate(self.sums):  # interleave the channels: no two writes collide
-            dr.scatter(flat, mi.Float(s), index + c)
+            mean = dr.select(weighed, mi.Float64(1.0), s) if c == self.weight else \
+                dr.select(weighed, s / weight, s)
+            dr.scatter(flat, mi.Float(mean), index + c)
         self.film.clear()
         tensor: Any = mi.TensorXf(flat, shape=(h, w, self.channels))
         block = mi.ImageBlock(tensor, self.offset,
