@@ -172,6 +172,7 @@ class TimingSummary:
     outliers: int
     loaded: int                   # runs that started with other processes runnable
     unstable: bool = field(default=False)
+    dropped: int = 0              # runs left out: wall time zero, negative or not finite
 
     @property
     def relative_spread(self) -> float:
@@ -188,12 +189,18 @@ class TimingSummary:
 
     @property
     def stable(self) -> bool:
-        """Neither unstable, nor loaded, nor with many outliers."""
-        return not (self.unstable or self.is_loaded or self.has_outliers)
+        """Neither unstable, nor loaded, nor with many outliers, nor with runs
+        left out (what :meth:`problems` names)."""
+        return not (self.unstable or self.is_loaded or self.has_outliers or self.dropped)
 
     def problems(self) -> list[str]:
         """What makes this case's timing doubtful, in words (empty: nothing)."""
+        if self.n == 0:
+            return [f"no usable time (of {self.dropped} runs, none took a positive, finite "
+                    f"time)"]
         out = []
+        if self.dropped:
+            out.append(f"{self.dropped} runs without a positive, finite time left out")
         if self.unstable:
             out.append(f"spread {100 * self.relative_spread:.0f}% of the median")
         if self.has_outliers:
@@ -204,23 +211,31 @@ class TimingSummary:
 
 
 def summarise(samples: Sequence[Sample]) -> TimingSummary:
-    """The robust summary of a case's timed runs (NaN fields when there are none)."""
+    """The robust summary of a case's timed runs (NaN fields when there are none).
+
+    A run whose wall time is not positive and finite is no time at all: it is
+    left out of every field (the CPU median and the loaded count too, which
+    otherwise spoke of more runs than ``n``) and counted in ``dropped``. The CPU
+    median is over the kept runs' finite CPU times (NaN if none)."""
+    kept = [s for s in samples if math.isfinite(s.wall) and s.wall > 0]
+    dropped = len(samples) - len(kept)
+    samples = kept
     wall = np.array([s.wall for s in samples], dtype=np.float64)
-    wall = wall[np.isfinite(wall) & (wall > 0)]
     n = int(wall.size)
     if n == 0:
         nan = math.nan
-        return TimingSummary(0, nan, nan, nan, nan, 0, 0, unstable=True)
+        return TimingSummary(0, nan, nan, nan, nan, 0, 0, unstable=True, dropped=dropped)
     median = float(np.median(wall))
     spread = float(1.4826 * np.median(np.abs(wall - median))) if n > 1 else math.nan
     outliers = int(np.count_nonzero(np.abs(wall - median)
                                     > max(OUTLIER_Z * spread, OUTLIER_MIN * median))) \
         if n > 2 else 0
-    cpu = float(np.median([s.cpu for s in samples]))
+    cpu_times = [s.cpu for s in samples if math.isfinite(s.cpu)]
+    cpu = float(np.median(cpu_times)) if cpu_times else math.nan
     loaded = sum(1 for s in samples if s.others)
     unstable = bool(n > 1 and spread / median > SPREAD_LIMIT)
     return TimingSummary(n, median, spread, float(wall.min()), cpu, outliers, loaded,
-                         unstable=unstable)
+                         unstable=unstable, dropped=dropped)
 
 
 @dataclass(frozen=True)
@@ -241,6 +256,8 @@ def quartiles(values: Sequence[float]) -> tuple[float, float]:
     smoke run)."""
     import statistics
 
+    if not values:  # no round: no quartile (not an IndexError)
+        return math.nan, math.nan
     if len(values) < 2:
         return values[0], values[0]
     q1, _, q3 = statistics.quantiles(values, n=4)

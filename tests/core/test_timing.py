@@ -135,3 +135,25 @@ def test_quartiles_of_the_benchmarks_ratios():
     round's value as its own (a --rounds 1 smoke run died in statistics.quantiles)."""
     assert quartiles([7.0, 1.0, 5.0, 3.0, 2.0, 6.0, 4.0]) == (2.0, 6.0)
     assert quartiles([0.8]) == (0.8, 0.8)
+
+
+def test_runs_without_a_time_are_left_out_of_every_field_and_named():
+    """A timed run of zero, negative or NaN wall time is no time at all. With no
+    usable run the summary said "spread nan% of the median"; with some, it left
+    them out of the median but not of the CPU median (NaN from one NaN CPU time)
+    or of the loaded count ("other processes running at 8 of 2 runs"). Now they
+    are left out of every field, counted and named; one round has no spread
+    (NaN, unknown) and is not called unstable; no round has no quartiles."""
+    none = summarise([Sample(0.0, 0.0), Sample(math.nan, math.nan), Sample(-1.0, 0.0)])
+    assert none.n == 0 and none.dropped == 3 and not none.stable
+    assert none.problems() == ["no usable time (of 3 runs, none took a positive, finite time)"]
+    assert "nan" not in " ".join(none.problems())
+    mixed = summarise([Sample(1.0, math.nan, 1), Sample(1.0, 0.5, 1)]
+                      + [Sample(0.0, 0.0, 1)] * 6)
+    assert (mixed.n, mixed.dropped, mixed.loaded, mixed.median) == (2, 6, 2, 1.0)
+    assert mixed.cpu_median == 0.5
+    assert mixed.problems() == ["6 runs without a positive, finite time left out",
+                                "other processes running at 2 of 2 runs"]
+    one = summarise([Sample(2.0, 2.0, 0)])
+    assert one.n == 1 and math.isnan(one.spread) and not one.unstable and one.problems() == []
+    assert all(math.isnan(q) for q in quartiles([]))
