@@ -163,7 +163,9 @@ def bias(image: np.ndarray, reference: np.ndarray, image_variance: np.ndarray | 
     (``M`` pixel-channel values; independent pixels). Missing variances count as
     zero: a deterministic render (e.g. the uniform grid) has none. With neither
     given, the spread of the differences themselves is used,
-    ``std(x - r) / sqrt(M)`` (valid for i.i.d. errors only).
+    ``std(x - r) / sqrt(M)`` (valid for i.i.d. errors only); a single value has
+    no spread to give, and its standard error and interval are NaN (unknown; not
+    0, which claimed its error exact and every non-zero one significant).
 
     Correlated values (with variances given): ``variance_factor`` multiplies the
     summed variance (a film filter wider than a pixel correlates neighbours:
@@ -179,7 +181,7 @@ def bias(image: np.ndarray, reference: np.ndarray, image_variance: np.ndarray | 
     m = diff.size
     value = float(diff.mean())
     if image_variance is None and reference_variance is None:
-        se = float(diff.std(ddof=1) / math.sqrt(m)) if m > 1 else 0.0
+        se = float(diff.std(ddof=1) / math.sqrt(m)) if m > 1 else math.nan
     else:
         total = np.zeros(diff.shape)
         for v in (image_variance, reference_variance):

@@ -200,3 +200,17 @@ def test_delta_e_2000_against_a_precomputed_reference_lab():
     assert delta_e_2000(image, reference, 2.0, lab) == delta_e_2000(image, reference, 2.0)
     with pytest.raises(ValueError, match="reference_lab shape"):
         delta_e_2000(image, reference, reference_lab=lab[:3])
+
+
+def test_the_bias_of_one_value_without_variances_is_unknown():
+    """One pixel-channel and no variances: the spread of the differences is
+    undefined (std with ddof 1 of one value). The standard error was 0, so any
+    non-zero error of a 1 x 1 grey image was 'significant' at any confidence;
+    now it is NaN and the interval unknown, never significant."""
+    b = bias(np.ones((1, 1)), np.zeros((1, 1)))
+    assert b.value == 1.0
+    assert math.isnan(b.standard_error) and math.isnan(b.low) and math.isnan(b.high)
+    assert not b.significant
+    # With the estimate's variance given, one value has its interval.
+    b = bias(np.ones((1, 1)), np.zeros((1, 1)), image_variance=0.04)
+    assert b.standard_error == pytest.approx(0.2) and b.significant
