@@ -18,7 +18,7 @@ import numpy as np
 
 from .aliasing import UNMEASURED
 from .study import StudyResult
-from .study.conclude import bias_lines, timing_lines
+from .study.conclude import bias_lines, cost_text, timing_lines
 from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Cell, Field
 
 
@@ -105,11 +105,18 @@ def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
         by_spp = {c["spp_requested"]: c for c in cells}
         rows.append([html.escape(sampler.label)]
                     + [_show(f, fit) for f in FIT_COLUMNS]
-                    + [fmt(1e3 * fit["fixed_seconds"]), fmt(1e9 * fit["seconds_per_sample"])]
+                    + [_cost(fit, "fixed_seconds", 1e3), _cost(fit, "seconds_per_sample", 1e9)]
                     + [_ratio_cell(by_spp[spp]) if spp in by_spp else "pending"
                        for spp in result.config.spp]
                     + [_verdicts(cells)])
     return rows
+
+
+def _cost(fit: Mapping[str, Any], key: str, scale: float) -> str:
+    """A cost of ``fit`` (HTML; :func:`~.study.conclude.cost_text`: a bound when the
+    times do not resolve it)."""
+    text = cost_text(fit[key], fit[f"{key}_se"], scale, ".3g")
+    return "&ndash;" if text == "-" else html.escape(text)
 
 
 def _ratio_cell(cell: Cell) -> str:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import shlex
 import sys
 from pathlib import Path
@@ -23,7 +22,13 @@ from ..analysis.study import (
     load_config,
     run_study,
 )
-from ..analysis.study.conclude import bias_lines, interval_text, ratio_sentence, timing_lines
+from ..analysis.study.conclude import (
+    bias_lines,
+    cost_text,
+    interval_text,
+    ratio_sentence,
+    timing_lines,
+)
 from ..core.atomic import remedy
 from ..core.executor import cluster_address
 from ..core.job import Interrupted
@@ -230,8 +235,8 @@ def _print_summary(result: StudyResult) -> None:
                 interval_text(fit[f"slope_{k}"], fit[f"slope_{k}_low"], fit[f"slope_{k}_high"],
                               "+.2f") for k in ("spp", "seconds"))
             print(f"  {sampler.label:14s} {spp_slope:>22s} {time_slope:>22s} "
-                  f"{_num(1e3 * fit['fixed_seconds'], '.2f'):>9s} "
-                  f"{_num(1e9 * fit['seconds_per_sample'], '.2f'):>9s}")
+                  f"{cost_text(fit['fixed_seconds'], fit['fixed_seconds_se'], 1e3):>9s} "
+                  f"{cost_text(fit['seconds_per_sample'], fit['seconds_per_sample_se'], 1e9):>9s}")
         print(f"  efficiency = 1/(excess MSE x median render time), as a ratio to {baseline}'s "
               f"at the same spp [95%]:")
         print(f"  {'sampler':14s} " + " ".join(f"{f'{spp} spp':>20s}" for spp in config.spp))
@@ -252,6 +257,3 @@ def _print_summary(result: StudyResult) -> None:
             if sentence:
                 print(f"  {sentence}")
 
-
-def _num(value: float, spec: str) -> str:
-    return format(value, spec) if math.isfinite(value) else "-"

@@ -63,3 +63,24 @@ def test_a_fits_points_count_the_seeds_it_used():
     x = np.log10([4, 4, 16])
     y = np.log10(np.array([4e-3, 5e-3, 1e-3]) - floor)
     assert math.isclose(fit["slope_spp"], np.polyfit(x, y, 1)[0], rel_tol=1e-9)
+
+
+def test_a_per_sample_cost_lost_in_the_scatter_is_shown_as_a_bound():
+    """A tiny film's renders take the fixed cost and noise: the least-squares
+    per-sample cost came out negative (-186 ns per sample, +- 480, on an 8 x 4
+    sky) and the study's tables printed it as a cost. Now a cost whose 95%
+    interval reaches 0 shows only its upper bound, a resolved one its value."""
+    from mcrt.analysis.study.conclude import cost_text
+    from mcrt.core.timing import fit_cost
+
+    samples = [32 * spp for spp in (4, 16) for _ in range(5)]
+    seconds = [1.2e-3, 1.0e-3, 1.4e-3, 1.1e-3, 1.3e-3, 1.3e-3, 1.1e-3, 1.0e-3, 1.2e-3, 1.25e-3]
+    fit = fit_cost(samples, seconds)
+    assert fit.per_unit < 0 < fit.per_unit + 1.96 * fit.per_unit_se  # noise, not a cost
+    text = cost_text(fit.per_unit, fit.per_unit_se, 1e9)
+    assert text == f"<{1e9 * (fit.per_unit + 1.96 * fit.per_unit_se):.2f}"
+    assert cost_text(fit.fixed, fit.fixed_se, 1e3) == f"{1e3 * fit.fixed:.2f}"  # resolved
+    assert cost_text(2e-9, 1e-10, 1e9) == "2.00"
+    assert cost_text(-1e-9, 1e-10, 1e9) == "-"  # negative and resolved: no cost at all
+    assert cost_text(-1e-9, math.nan, 1e9) == "-" and cost_text(1e-9, math.nan, 1e9) == "1.00"
+    assert cost_text(math.nan, math.nan, 1e9) == "-"

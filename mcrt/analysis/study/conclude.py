@@ -109,6 +109,24 @@ def interval_text(value: float, low: float, high: float, spec: str = ".3g") -> s
     return f"{_g(value, spec)} [{_g(low, spec)}, {_g(high, spec)}]"
 
 
+def cost_text(value: float, se: float, scale: float, spec: str = ".2f") -> str:
+    """A cost of the timing fit (:func:`mcrt.core.timing.fit_cost`: seconds per
+    render or per sample) times ``scale``, in words: the value when its 95%
+    interval ``value +- 1.96 se`` lies above 0; else only what the times bound it
+    by, ``< value + 1.96 se`` (a cost is never negative, and a tiny film's
+    per-sample cost is lost in the fixed cost's scatter: the fit gave -186 ns
+    per sample +- 480); ``-`` when nothing bounds it. The normal quantile: the
+    fit is over every timed render of a sampler's cells (dozens)."""
+    if not math.isfinite(value):
+        return "-"
+    if not math.isfinite(se):  # two sizes, no residual: the value, if it can be a cost
+        return format(value * scale, spec) if value > 0 else "-"
+    high = value + 1.96 * se
+    if value - 1.96 * se > 0:
+        return format(value * scale, spec)
+    return f"<{format(high * scale, spec)}" if high > 0 else "-"
+
+
 def bias_lines(cells: Sequence[Cell]) -> list[str]:
     """One line per (scene, sampler) with biased cells: where, how much, how sure."""
     measured = sum(1 for c in cells if math.isfinite(two_sided_p(c["bias_z"], c["bias_df"])))
@@ -159,5 +177,5 @@ def ratio_sentence(cell: Cell, baseline: str) -> str:
     if low <= 1.0 <= high:
         text += " (no significant difference)"
     return text
-__all__ = ["BIAS_ALPHA", "bias_lines", "conclude", "interval_text", "ratio_sentence",
+__all__ = ["BIAS_ALPHA", "bias_lines", "conclude", "cost_text", "interval_text", "ratio_sentence",
            "timing_lines", "timing_verdict"]
