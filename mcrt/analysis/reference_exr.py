@@ -21,9 +21,13 @@ def reference_layers(ref: Reference) -> dict[str, np.ndarray]:
     ``stderr`` (of the mean), ``count`` (samples per pixel; float32 in the file,
     exact up to 2^24 per pixel) and ``nonfinite`` if any sample was NaN/Inf. The
     arrays are the float64 sums' own: :func:`~mcrt.io.write_exr` stores them as
-    float32 and says where a finite value overflows it (a variance past 3.4e38)."""
-    layers = {"rgb": ref.mean, "variance": ref.variance, "stderr": ref.standard_error,
-              "count": ref.stats.count}
+    float32 and says where a finite value overflows it (a variance past 3.4e38).
+    The variance is NaN (unknown) where the standard error is: a pixel with
+    fewer than two finite samples (every pixel of a 1-spp reference) has no
+    spread to estimate, and the 0 its moments hold read as an exact pixel."""
+    stderr = ref.standard_error
+    layers = {"rgb": ref.mean, "variance": np.where(np.isnan(stderr), np.nan, ref.variance),
+              "stderr": stderr, "count": ref.stats.count}
     if isinstance(ref.stats, FilteredStats):
         layers["effective_count"] = ref.stats.effective_count
     if ref.stats.nonfinite.any():
@@ -37,14 +41,21 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
     the command that renders it again, scene digest, versions) and its sample
     totals, exact Python ints (``write_exr`` stores those beyond int32 as decimal
     strings)."""
-    from ..core.provenance import absolute, command_text, plugin_files, scene_facts, software
+    from ..core.provenance import (
+        absolute,
+        command_text,
+        define_words,
+        plugin_files,
+        scene_facts,
+        software,
+    )
 
     plan = ref.plan
     params = dict(params or {})
     words = [absolute(scene_path), "--spp", plan.requested_spp if plan else ref.spp,
              "--sampler", ref.sampler, "--seed", ref.seed,
              *(["--spp-per-pass", plan.pass_spp] if plan else []),
-             *[w for k, v in params.items() for w in ("-D", f"{k}={v}")]]
+             *define_words(scene_path, params)]
     return {
         **software(), "mcrt_kind": "reference",
         "command": command_text("reference", *words, plugins=plugin_files(ref.sampler)),

@@ -343,6 +343,18 @@ def test_cli_writes_layers_and_metadata(scene, cache, tmp_path, capsys):
     assert "found in cache" in capsys.readouterr().out
 
 
+def test_a_one_sample_reference_has_an_unknown_variance_not_zero(scene, cache, tmp_path):
+    """At 1 spp no pixel has a spread to estimate: the EXR's ``stderr`` layer was
+    NaN (unknown) but its ``variance`` layer 0, which reads as an exact
+    reference. Both are NaN now; the mean and count are as rendered."""
+    out = tmp_path / "ref.exr"
+    assert main(["-q", "reference", str(scene), "--spp", "1", "-D", "res=8",
+                 "-D", "max_depth=3", "-o", str(out)]) == 0
+    layers, _ = read_exr(out)
+    assert np.isnan(layers["stderr"]).all() and np.isnan(layers["variance"]).all()
+    assert np.isfinite(layers["rgb"]).all() and (layers["count"] == 1).all()
+
+
 @pytest.mark.parametrize("argv, message", [
     (["reference", "{scene}", "--sampler", "nope"], "unknown sampler 'nope'"),
     (["reference", "{missing}"], "scene file not found"),
