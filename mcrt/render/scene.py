@@ -22,10 +22,17 @@ from ..errors import SceneError
 
 
 def parse_defines(items: list[str] | None) -> dict[str, str]:
-    """``["key=value", ...]`` (the CLI's ``-D``) to a dict, with clear errors."""
+    """``["key=value", ...]`` (the CLI's ``-D``) to a dict, with clear errors.
+
+    Besides the scene's ``$key`` parameters, :data:`RFILTER_PARAM` (``-D
+    mcrt.rfilter=NAME``) replaces the film's reconstruction filter: a study with
+    ``filters`` renders so, and its images' recorded commands say so."""
     params: dict[str, str] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
+        if key.strip() == RFILTER_PARAM and sep:
+            params[RFILTER_PARAM] = value.strip()
+            continue
         if not sep or not key.strip() or not re.fullmatch(r"[A-Za-z_]\w*", key.strip()):
             raise SceneError(f"-D expects key=value with a parameter name as key, got {item!r}")
         params[key.strip()] = value
