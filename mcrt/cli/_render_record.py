@@ -19,7 +19,15 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from ..core.provenance import COMMAND, absolute, command_text, param_word, scene_facts, software
+from ..core.provenance import (
+    COMMAND,
+    absolute,
+    command_text,
+    define_word,
+    param_word,
+    scene_facts,
+    software,
+)
 from ..core.sampling import sampler_fingerprint, sampler_name
 from ..core.sampling import sampler_params as sampler_params_of
 from ..errors import McrtError
@@ -35,6 +43,8 @@ SETTINGS = ("variant", "plugins", "scene", "defines", "sampler", "sampler_params
 def render_words(args: argparse.Namespace, spp: int) -> list[str]:
     """The render's arguments after ``render``, every one that changes its pixels
     (the scene by absolute path; no ``-o``)."""
+    from ..core.scene_files import working_directory_files
+    from ..render.scene import parse_defines
     from ._adaptive_args import cli_parameters
 
     words = [absolute(args.scene)]
@@ -43,7 +53,8 @@ def render_words(args: argparse.Namespace, spp: int) -> list[str]:
         words += [w for p in getattr(args, "sampler_params", None) or []
                   for w in ("-P", param_word(p))]
     words += ["--spp", str(spp), "--seed", str(args.seed)]
-    words += [w for d in args.defines or [] for w in ("-D", d)]
+    local = working_directory_files(args.scene, parse_defines(args.defines))
+    words += [w for d in args.defines or [] for w in ("-D", define_word(d, local))]
     words += [w for e in args.effect or [] for w in ("--effect", e)]
     words += ["--multisample"] if getattr(args, "multisample", False) else []
     if getattr(args, "adaptive", False):

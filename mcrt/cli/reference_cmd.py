@@ -16,6 +16,7 @@ from ..analysis.reference import (
 from ..core.atomic import remedy
 from ..core.executor import cluster_address
 from ..core.job import Interrupted
+from ..core.provenance import located
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
 from ..io import write_exr
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     # Everything a user can get wrong is checked before rendering starts
     # (get_reference loads the scene and plans the passes before its first pass).
     check_sampler_name(args.sampler)
-    params = parse_defines(args.defines)
+    params = located(args.scene, parse_defines(args.defines))  # -D files by absolute path
     check_scene_file(args.scene)
     out = _output_path(args.output, args.scene)
     # Refused (a check, too little room) or failed before writing: no empty folder is left.

@@ -21,6 +21,7 @@ from ..core.atomic import check_free_space, remedy
 from ..core.engine import reseeds_each_pass
 from ..core.executor import cluster_address
 from ..core.job import Checkpoint, Checkpointing, CheckpointStore, Interrupted
+from ..core.provenance import located
 from ..core.render import FilmRender, PassTasks, render_film
 from ..core.render_job import checkpoint_paths, render_key, require_render_memory
 from ..core.sampling import (
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     # Everything a user can get wrong is checked before rendering starts.
     if args.sampler is not None:
         check_sampler_name(args.sampler)
-    params = parse_defines(args.defines)
+    params = located(args.scene, parse_defines(args.defines))  # -D files by absolute path
     sampler_params = parse_sampler_params(args.sampler_params, args.sampler)
     overrides = parse_effect_overrides(args.effect)
     multisample = getattr(args, "multisample", False)

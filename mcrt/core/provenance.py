@@ -102,6 +102,33 @@ def param_word(item: str) -> str:
     return item
 
 
+def define_word(item: str, local: Iterable[str]) -> str:
+    """A ``-D key=value`` item as a recorded command gives it: a value among
+    ``local``, files the scene finds only in the working directory
+    (:func:`~mcrt.core.scene_files.working_directory_files`), by absolute path, so
+    that the command renders the same scene from any directory; any other item
+    as it is."""
+    key, sep, value = item.partition("=")
+    return f"{key}={absolute(value)}" if sep and value in set(local) else item
+
+
+def define_words(scene: str | Path, params: dict[str, str]) -> list[str]:
+    """``-D key=value`` for each of a scene's ``params``, as :func:`define_word`
+    gives them."""
+    return [w for k, v in located(scene, params).items() for w in ("-D", f"{k}={v}")]
+
+
+def located(scene: str | Path, params: dict[str, str]) -> dict[str, str]:
+    """A scene's ``params`` with each value that names a file the scene finds only
+    in the working directory by absolute path (:func:`define_word`): what a render
+    loads, keys and records (its scene digest too), so that its command, run from
+    another directory, renders and digests the same scene."""
+    from .scene_files import working_directory_files
+
+    local = working_directory_files(scene, params)
+    return {k: absolute(v) if v in local else v for k, v in params.items()}
+
+
 def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
     """The words of a header's ``command`` after ``mcrt`` (an error naming the
     file if it has none: not written by mcrt, or by a version before commands
@@ -116,5 +143,5 @@ def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
     return words[1:]
 
 
-__all__ = ["COMMAND", "FILE_PARAMS", "absolute", "command_text", "command_words", "param_word",
-           "plugin_files", "scene_facts", "software"]
+__all__ = ["COMMAND", "FILE_PARAMS", "absolute", "command_text", "command_words", "define_word",
+           "define_words", "located", "param_word", "plugin_files", "scene_facts", "software"]

@@ -51,17 +51,23 @@ class SceneFile:
     name: str | None = None    # a reference as written (after substitution)
     exists: bool = True
     xml: bool = False          # a reference walked as XML (an include or a .xml file)
+    #: a reference found only in the working directory (Mitsuba's last resort)
+    in_cwd: bool = False
 
 
-def _resolve(name: str, folder: Path, search: list[Path]) -> Path:
+def _resolve(name: str, folder: Path, search: list[Path]) -> tuple[Path, bool]:
     """Where Mitsuba finds ``name``: the folders of ``<path value=...>`` elements, the
-    last one first (each is prepended to its file resolver), then ``folder``."""
+    last one first (each is prepended to its file resolver), then ``folder``, then
+    the working directory (where its file resolver looks last); and whether it was
+    found there only."""
     if os.path.isabs(name):
-        return Path(name)
+        return Path(name), False
     for base in (*reversed(search), folder):
         if (base / name).is_file():
-            return base / name
-    return folder / name
+            return base / name, False
+    if (Path.cwd() / name).is_file():
+        return Path.cwd() / name, True
+    return folder / name, False
 
 
 def walk_scene(path: str | Path, params: dict[str, str] | None = None,
@@ -102,11 +108,11 @@ def walk_scene(path: str | Path, params: dict[str, str] | None = None,
         if not name:
             continue
         name = _substitute(name, values)
-        target = _resolve(name, path.parent if el.tag == "include" else top, search)
+        target, in_cwd = _resolve(name, path.parent if el.tag == "include" else top, search)
         exists = target.is_file()
         xml = exists and (el.tag == "include" or target.suffix.lower() == ".xml")
         yield SceneFile(target.resolve() if exists else target, name=name, exists=exists,
-                        xml=xml)
+                        xml=xml, in_cwd=in_cwd)
         if xml:
             yield from walk_scene(target, params, seen, search, top)
 
@@ -128,6 +134,18 @@ def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -
     return digest.hexdigest()
 
 
+def working_directory_files(scene_path: str | Path, params: dict[str, str] | None = None
+                            ) -> set[str]:
+    """The references (as written, after substitution) that the scene finds only in
+    the working directory, e.g. ``-D mesh=my.obj`` naming a file there: a command
+    that renders the scene again from elsewhere must name them by absolute path."""
+    try:
+        return {item.name for item in walk_scene(scene_path, params)
+                if item.in_cwd and item.name is not None}
+    except (OSError, ValueError):  # a scene gone or unreadable: its load reports it
+        return set()
+
+
 @dataclass(frozen=True)
 class SceneBundle:
     """A scene's files, to render it where they are not: ``files`` maps paths
@@ -147,7 +165,7 @@ def bundle_scene(scene_path: str | Path, params: dict[str, str] | None = None) -
     main = Path(scene_path).resolve()
     paths = [main]
     for item in walk_scene(main, params):
-        if item.data is None and item.exists and item.name is not None \
+        if item.data is None and item.exists and item.name is not None and not item.in_cwd \
                 and not os.path.isabs(item.name) and item.path not in paths:
             paths.append(item.path)
     root = Path(os.path.commonpath([str(p.parent) for p in paths]))

@@ -8,7 +8,8 @@ pairs) and a randomisation of the set (:data:`RANDOMIZATIONS`).
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Callable
+from typing import ClassVar, cast
 
 import drjit as dr
 import mitsuba as mi
@@ -72,6 +73,16 @@ def device_table(key: tuple, table_of) -> tuple[mi.Float, mi.Float, int]:
         _DEVICE[full_key] = (mi.Float(table[:, :, 0].ravel()), mi.Float(table[:, :, 1].ravel()),
                              int(table.shape[0]))
     return _DEVICE[full_key]
+
+
+def _resolved(filename: str) -> str:
+    """Where Mitsuba's file resolver finds ``filename``: in a scene, relative to
+    the scene's folder first, as every other file the scene names (and as its
+    content digest and travelling bundle assume), then the working directory;
+    ``filename`` as given when it finds nothing (read relative to the working
+    directory, and reported there)."""
+    resolver = cast(Callable[[], mi.FileResolver], mi.file_resolver)()  # not in the stubs
+    return str(resolver.resolve(filename))
 
 
 def _wrap(v: mi.Float) -> mi.Float:
@@ -190,8 +201,8 @@ class PointSetSampler(McrtSampler):
             if "filename" not in props:
                 raise SamplerError(f"{self.plugin_name}: give the point sets' file, e.g. "
                                    f"<string name=\"filename\" value=\"sets.npy\"/>")
-            self.filename = str(props["filename"])
-            self._source = FileSource(self.filename)
+            self._source = FileSource(_resolved(str(props["filename"])))
+            self.filename = self._source.describe()  # by absolute path, as found
         # Without a sample_count the C++ default (4) stands in; a file that has no
         # 4-point sets then serves its smallest (see _effective_count).
         self._count_defaulted = "sample_count" not in props

@@ -60,6 +60,42 @@ def _point_sets(path: Path) -> None:
     np.save(path, (rng.random((16, 4, 2)) * 0.99).astype(np.float32))
 
 
+def test_a_scene_s_point_set_file_is_read_beside_the_scene(capsys, monkeypatch, tmp_path):
+    """``<sampler type="pointset"><string name="filename" value="sets.npy"/>``: found
+    in the scene's folder, as every file a scene names (it was read relative to the
+    working directory: the scene rendered only from its own folder, and its
+    recorded command failed anywhere else)."""
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    _point_sets(folder / "sets.npy")
+    text = CORNELL.read_text().replace(
+        '<sampler type="$sampler">',
+        '<sampler type="pointset"><string name="filename" value="sets.npy"/>')
+    (folder / "box.xml").write_text(text)
+    code, _, err = run_cli(capsys, "-q", "render", str(folder / "box.xml"), "-D", "res=8",
+                           "-D", "spp=4", "-D", "max_depth=2", "-o", "scene_sets")
+    assert code == 0, err
+    _again_elsewhere(capsys, monkeypatch, tmp_path, Path("scene_sets.exr"))
+
+
+@pytest.mark.parametrize("command", ["render", "reference"])
+def test_a_define_naming_a_file_in_the_working_directory(capsys, monkeypatch, tmp_path,
+                                                         command):
+    """``-D light=my_light.obj`` with the mesh in the working directory (where
+    Mitsuba looks last): the command names it by absolute path and the scene's
+    digest covers it (it was recorded as typed: the command failed from another
+    folder, or found another file of that name)."""
+    light = (MESH_LIGHT.parent / "meshes" / "quad_light.obj").read_text()
+    Path("my_light.obj").write_text(light.replace("1.9", "1.7"))
+    extra = ["--spp", "4"] if command == "render" else ["--spp", "8", "--spp-per-pass", "8"]
+    code, _, err = run_cli(capsys, "-q", command, str(MESH_LIGHT), "-D", "light=my_light.obj",
+                           "-D", "res=8", *extra, "-o", "local_light.exr")
+    assert code == 0, err
+    made = Path("local_light.exr")
+    assert f"light={Path('my_light.obj').resolve()}" in _command(made)
+    _again_elsewhere(capsys, monkeypatch, tmp_path, made)
+
+
 def test_every_image_of_a_study_with_filters_renders_again(capsys, monkeypatch, tmp_path):
     """A study's ``filters`` axis: its images' commands carry the filter as ``-D
     mcrt.rfilter=NAME``, which ``mcrt render`` and ``mcrt reference`` take (they

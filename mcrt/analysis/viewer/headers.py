@@ -48,7 +48,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core.provenance import COMMAND, absolute, command_text, param_word, plugin_files
+from ...core.provenance import (
+    COMMAND,
+    absolute,
+    command_text,
+    define_words,
+    param_word,
+    plugin_files,
+)
 
 if TYPE_CHECKING:
     from ..reference import Reference
@@ -170,7 +177,7 @@ def seed_command(result: StudyResult, record: SceneRecord, sampler: SamplerSpec,
     ``--seed`` (a seed's file adds it; a mean file's seeds are ``seeds``)."""
     scene = next(s for s in result.config.scenes if s.name == record.scene)
     words = [absolute(scene.path),
-             *[w for k, v in scene.params.items() for w in ("-D", f"{k}={v}")],
+             *define_words(scene.path, dict(scene.params)),
              "--sampler", sampler.name,
              *[w for k, v in sampler.params.items()
                for w in ("-P", param_word(f"{k}={_cli_value(v)}"))],
