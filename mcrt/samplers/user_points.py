@@ -34,7 +34,7 @@ def points_class(name: str, *, points: Callable | None = None, file: str | Path 
     else:
         if sets is not None:
             raise SamplerError(f"{name}: sets= is for generators; a file holds its own sets")
-        source = point_sources.FileSource(file)  # type: ignore[arg-type]
+        source = point_sources.FileSource(_beside_plugin(file))  # type: ignore[arg-type]
         what = f"point sets of {Path(str(file)).name}"
     summary = f"{what}, {randomize}"
     # A plugin file's registration keeps naming the file after a variant switch.
@@ -55,3 +55,16 @@ def points_class(name: str, *, points: Callable | None = None, file: str | Path 
 
     rebuild()
     return name
+
+
+def _beside_plugin(file: str | Path) -> str | Path:
+    """A point-set file as a plugin file names it: a relative path is relative
+    to the plugin's folder (as a study configuration's paths are to its file), so
+    that the command an output records (the plugin by absolute path) reads the
+    same file from any working directory; outside a plugin file, ``file`` as it
+    is (relative to the working directory)."""
+    plugin = Path(registry.default_origin())
+    name = Path(str(file)).expanduser()
+    if name.is_absolute() or plugin.suffix != ".py" or not plugin.is_file():
+        return file
+    return plugin.resolve().parent / name

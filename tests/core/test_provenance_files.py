@@ -78,6 +78,22 @@ def test_a_scene_s_point_set_file_is_read_beside_the_scene(capsys, monkeypatch, 
     _again_elsewhere(capsys, monkeypatch, tmp_path, Path("scene_sets.exr"))
 
 
+def test_a_plugin_s_point_set_file_is_read_beside_the_plugin(capsys, monkeypatch, tmp_path):
+    """``register_sampler("mine", file="sets.npy")`` in a plugin file: relative to
+    the plugin's folder (it was relative to the working directory, so the recorded
+    command, which names the plugin by absolute path, failed from anywhere else)."""
+    folder = tmp_path / "plugin"
+    folder.mkdir()
+    _point_sets(folder / "sets.npy")
+    (folder / "mine.py").write_text('import mcrt\n\nmcrt.register_sampler("file_sets", '
+                                    'file="sets.npy")\n')
+    code, _, err = run_cli(capsys, "-q", "--plugin", str(folder / "mine.py"), "render",
+                           str(CORNELL), "-D", "res=8", "-D", "max_depth=2", "--sampler",
+                           "file_sets", "--spp", "4", "-o", "plugin_sets")
+    assert code == 0, err
+    _again_elsewhere(capsys, monkeypatch, tmp_path, Path("plugin_sets.exr"))
+
+
 @pytest.mark.parametrize("command", ["render", "reference"])
 def test_a_define_naming_a_file_in_the_working_directory(capsys, monkeypatch, tmp_path,
                                                          command):
