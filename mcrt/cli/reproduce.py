@@ -23,7 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.provenance import COMMAND, command_words, scene_facts, software
+from ..core.provenance import (
+    COMMAND,
+    command_words,
+    scene_facts,
+    software,
+    software_changes,
+)
 from ..errors import McrtError
 from ..io import read_exr, write_exr
 from ._common import check_output_files, output_stem
@@ -49,6 +55,10 @@ def run_from(args: argparse.Namespace) -> int:
     if stem.with_suffix(".exr").resolve() == source.resolve():
         raise McrtError(f"-o {args.output}: that is {source} itself; write elsewhere")
     _note_scene_changes(words, header, source)
+    changes = software_changes(header)
+    if changes:
+        log.warning("%s was written by other software: %s; the pixels may differ for that "
+                    "reason", source, "; ".join(changes))
     extra = ["--cluster", args.cluster] if getattr(args, "cluster", None) else []
     log.info("rendering again: %s", header[COMMAND])
     image: np.ndarray | None
@@ -62,7 +72,7 @@ def run_from(args: argparse.Namespace) -> int:
             return code
         out = stem.with_suffix(".exr")
         image = _film_image(read_exr(out)[0])
-    return _compare(out, image, source, _film_image(layers))
+    return _compare(out, image, source, _film_image(layers), bool(changes))
 
 
 #: The film's own channels when they are not R, G, B [A] (the ``rgb`` layer): the
@@ -143,8 +153,8 @@ def _mean_over_seeds(words: list[str], header: dict, stem: Path, extra: list[str
     return out, views.mean
 
 
-def _compare(out: Path, image: np.ndarray | None, source: Path, original: np.ndarray | None
-             ) -> int:
+def _compare(out: Path, image: np.ndarray | None, source: Path, original: np.ndarray | None,
+             other_software: bool = False) -> int:
     """Say whether ``image`` (written to ``out``) equals ``source``'s pixels bit for bit."""
     if original is None or image is None:
         raise McrtError(f"{source if original is None else out} has no film image (R G B, "
@@ -164,7 +174,8 @@ def _compare(out: Path, image: np.ndarray | None, source: Path, original: np.nda
     differ = np.any(new.view(np.uint32) != old.view(np.uint32), axis=-1)
     gap = np.abs(np.nan_to_num(new.astype(np.float64) - old))
     print(f"{out}: {int(differ.sum())} of {differ.size} pixels differ from {source} "
-          f"(largest difference {float(gap.max()):.3g})")
+          f"(largest difference {float(gap.max()):.3g})"
+          + (" -- it was written by other software (noted above)" if other_software else ""))
     return 1
 
 

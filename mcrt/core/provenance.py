@@ -14,14 +14,19 @@ keys in its file's header, beside its own settings:
                   includes and names: :func:`~mcrt.core.scene_files.scene_digest`)
 ``variant``       Mitsuba's variant
 ``*_version``     ``mcrt_version``, ``mitsuba_version``, ``drjit_version``
+``mcrt_source``   SHA-256 (16 hex digits) of mcrt's own source files: the
+                  version number stays while the code changes between releases
 ================  ============================================================
 
 ``mcrt render --from FILE.exr`` runs a file's ``command`` again and says
-whether the pixels came out the same (:mod:`mcrt.cli.reproduce`).
+whether the pixels came out the same (:mod:`mcrt.cli.reproduce`), and first
+notes a file written by other software (:func:`software_changes`).
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import shlex
 from collections.abc import Iterable
 from pathlib import Path
@@ -41,8 +46,36 @@ def software() -> dict[str, str]:
     from .._version import __version__
 
     return {"variant": str(mi.variant() or ""), "mcrt_version": __version__,
-            "mitsuba_version": str(mi.__version__),
+            "mcrt_source": source_digest(), "mitsuba_version": str(mi.__version__),
             "drjit_version": str(dr.__version__)}  # type: ignore[attr-defined]
+
+
+@functools.cache
+def source_digest() -> str:
+    """SHA-256 (first 16 hex digits) of mcrt's Python files and the data files
+    beside them (the report viewer's scripts), by path within the package and
+    content: two processes give the same digest exactly when they run the same
+    mcrt code, whatever its version number says."""
+    package = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for path in sorted(p for p in package.rglob("*")
+                       if p.is_file() and p.suffix in (".py", ".js", ".css", ".html")):
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+#: The header keys that name the software a file was made with (see :func:`software`).
+SOFTWARE_KEYS = ("mcrt_source", "mitsuba_version", "drjit_version")
+
+
+def software_changes(header: dict[str, Any]) -> list[str]:
+    """What differs between the software that wrote ``header`` and this process's,
+    e.g. ``["mcrt_source 1a2b... (now 3c4d...)"]``; a key the file lacks (written
+    before it was recorded) is not a difference."""
+    now = software()
+    return [f"{key} {header[key]} (now {now[key]})" for key in SOFTWARE_KEYS
+            if header.get(key) and str(header[key]) != now[key]]
 
 
 def scene_facts(scene: str | Path, params: dict[str, str]) -> dict[str, str]:

@@ -19,6 +19,7 @@ import OpenEXR
 import pytest
 
 from mcrt import __version__
+from mcrt.core.provenance import source_digest
 from mcrt.core.scene_files import scene_digest
 from mcrt.io import read_exr, write_exr
 from tests.conftest import run_cli
@@ -63,6 +64,7 @@ def test_a_render_header_records_every_setting_that_changes_its_pixels(capsys):
     plain, ms = _header(Path("plain.exr")), _header(Path("ms.exr"))
     for header in (plain, ms):
         assert header["mcrt_version"] == __version__
+        assert header["mcrt_source"] == source_digest()
         assert header["mitsuba_version"] == mi.__version__
         assert header["drjit_version"] == dr.__version__
         assert header["variant"] == mi.variant()
@@ -190,6 +192,7 @@ def test_from_renders_every_image_of_a_study_again(capsys, tmp_path):
     for f in files:
         header = _header(f)
         assert json.loads(header["seeds"]) == [0, 1]
+        assert header["mcrt_source"] == source_digest()
         code, out, _ = _again(capsys, f, "-o", f"again/{f.stem}")
         assert code == 0 and "bit for bit" in out, (f, out)
 
@@ -234,6 +237,30 @@ def test_from_says_when_pixels_differ_and_why(capsys):
     scene.write_text(CORNELL.read_text() + "<!-- edited -->\n")
     code, out, err = _again(capsys, Path("a.exr"))
     assert "files are not what they were" in err
+
+
+def test_from_says_when_a_file_was_written_by_other_code(capsys):
+    """The version number stays while mcrt's code changes: the header's digest of
+    mcrt's source says whether the code that wrote a file is this one. --from
+    notes other code (or another Mitsuba / Dr.Jit) before rendering, and names it
+    again if the pixels differ; a file without the key (older) gets no note."""
+    assert run_cli(capsys, "render", str(CORNELL), "-D", "res=16", "--spp", "4", "-o", "a")[0] == 0
+    layers, header = read_exr(Path("a.exr"))
+    code, out, err = _again(capsys, Path("a.exr"))
+    assert code == 0 and "other software" not in err
+    write_exr(Path("b.exr"), layers, {**header, "mcrt_source": "0123456789abcdef"})
+    code, out, err = _again(capsys, Path("b.exr"))
+    assert code == 0 and "bit for bit" in out
+    assert f"written by other software: mcrt_source 0123456789abcdef (now {source_digest()})" \
+        in " ".join(err.split())
+    layers["rgb"][0, 0, 0] += 1.0
+    write_exr(Path("c.exr"), layers, {**header, "drjit_version": "0.0.1"})
+    code, out, err = _again(capsys, Path("c.exr"))
+    assert code == 1 and "drjit_version 0.0.1" in err and "other software" in out
+    del header["mcrt_source"]
+    write_exr(Path("d.exr"), read_exr(Path("a.exr"))[0], header)
+    code, out, err = _again(capsys, Path("d.exr"))
+    assert code == 0 and "other software" not in err
 
 
 @pytest.mark.parametrize("setup, argv, message", [

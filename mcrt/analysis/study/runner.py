@@ -22,6 +22,7 @@ from ... import __version__
 from ...core.executor import Executor, cluster_status
 from ...core.job import Interrupted, Job, run_job
 from ...core.progress import Progress
+from ...core.provenance import source_digest
 from ...core.stats import PixelStats
 from ...core.timing import Sample, machine, round_orders
 from ...errors import McrtError
@@ -134,8 +135,8 @@ def environment() -> dict[str, Any]:
 
 
     drjit_version = dr.__version__  # type: ignore[attr-defined]  # not in drjit's stubs
-    return {"mcrt": __version__, "mitsuba": mi.__version__, "drjit": drjit_version,
-            "variant": mi.variant(), "python": platform.python_version(),
+    return {"mcrt": __version__, "mcrt_source": source_digest(), "mitsuba": mi.__version__,
+            "drjit": drjit_version, "variant": mi.variant(), "python": platform.python_version(),
             "platform": platform.platform(), "cpus": os.cpu_count(), "machine": machine(),
             "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}
 

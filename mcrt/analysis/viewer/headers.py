@@ -21,8 +21,8 @@ file taken out of its report can be reproduced and compared:
 ``spp``             samples per pixel requested; ``spp_effective`` rendered
 ``seeds``           the study's seeds (JSON list); ``seed_count``; ``seed`` on a
                     first seed's render
-``variant``         Mitsuba's variant; ``mcrt_version``, ``mitsuba_version``,
-                    ``drjit_version`` as the study ran
+``variant``         Mitsuba's variant; ``mcrt_version``, ``mcrt_source``,
+                    ``mitsuba_version``, ``drjit_version`` as the study ran
 ``command``         ``mcrt render`` of one seed's render (``--seed`` added on
                     a seed's file), the reference's ``mcrt reference``: what
                     ``mcrt render --from FILE.exr`` runs
@@ -93,6 +93,7 @@ def study_header(result: StudyResult) -> Header:
     seeds = list(result.config.seeds)
     return {"study": result.config.name, "seeds": _json(seeds), "seed_count": len(seeds),
             "variant": str(env.get("variant", "")), "mcrt_version": str(env.get("mcrt", "")),
+            **({"mcrt_source": str(env["mcrt_source"])} if env.get("mcrt_source") else {}),
             "mitsuba_version": str(env.get("mitsuba", "")),
             "drjit_version": str(env.get("drjit", ""))}
 
