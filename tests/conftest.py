@@ -159,6 +159,15 @@ def same_film(a, b) -> None:
         assert np.array_equal(array, b.checkpoint.arrays[name]), name
 
 
+def png_text_of(path: Path) -> dict[str, str]:
+    """A PNG's text chunks (``tEXt``/``iTXt``) as Pillow reads them."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        image.load()
+        return dict(image.text)  # type: ignore[attr-defined]  (PNG images have .text)
+
+
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     """``mcrt ARGV`` in-process: (exit code, stdout, stderr); argparse exits included."""
     try:

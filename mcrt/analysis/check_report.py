@@ -94,9 +94,14 @@ def _data(results: list[CheckResult], key: str) -> Any:
     return next((r.data[key] for r in results if key in r.data), None)
 
 
-def _figures(out: Path, name: str, results: list[CheckResult]) -> list[str]:
-    """Draw the figures whose data the checks produced; returns their file names."""
+def _figures(out: Path, name: str, results: list[CheckResult],
+             record: dict[str, str]) -> list[str]:
+    """Draw the figures whose data the checks produced (``record``'s command in
+    each PNG's text); returns their file names."""
+    from ..core.provenance import png_text
     from . import plots
+
+    text = png_text(record)
 
     written = []
     points = _data(results, "points")
@@ -107,7 +112,7 @@ def _figures(out: Path, name: str, results: list[CheckResult]) -> list[str]:
         fig = plots.new_figure(7.0, 3.6)
         for i, ax in enumerate(fig.subplots(1, len(points))):
             plots.plot_point_set(ax, points[i], grid=grid, title=f"{name}: pixel {i}, N = {n}")
-        plots.save_figure(fig, out / "points.png")
+        plots.save_figure(fig, out / "points.png", text=text)
         written.append("points.png")
     convergence = _data(results, "convergence")
     if convergence is not None:
@@ -124,7 +129,7 @@ def _figures(out: Path, name: str, results: list[CheckResult]) -> list[str]:
                                    reference_slopes=(-1.0,), title=f"MSE, {integrand}")
             if math.isfinite(fit.slope):
                 ax.plot(n, [fit.mse_at(x) for x in n], color="tab:red", lw=0.8, ls="--")
-        plots.save_figure(fig, out / "mse.png")
+        plots.save_figure(fig, out / "mse.png", text=text)
         written.append("mse.png")
     radial = _data(results, "radial")
     if radial is not None:
@@ -132,7 +137,7 @@ def _figures(out: Path, name: str, results: list[CheckResult]) -> list[str]:
         plots.plot_radial_power(fig.add_subplot(), radial, label=name,
                                 title=f"{name}: radially averaged power, N = {radial.n_points} "
                                       f"({radial.n_sets} pixels)")
-        plots.save_figure(fig, out / "radial.png")
+        plots.save_figure(fig, out / "radial.png", text=text)
         written.append("radial.png")
     return written
 
@@ -173,7 +178,7 @@ def write_report(out: Path, name: str, params: dict[str, Any], seed: int, quick:
     """Write the figures, ``results.json`` and ``report.html`` to ``out``; returns
     the names of the files written. ``record``: how the run was made (its
     ``command`` and the versions), added to ``results.json``."""
-    figures = _figures(out, name, results)
+    figures = _figures(out, name, results, record or {})
     data = {**summary(name, params, seed, quick, results, spp), **(record or {})}
     write_json(out / "results.json", data)
     with atomic_path(out / "report.html") as tmp:

@@ -38,9 +38,12 @@ def new_figure(width: float, height: float) -> Figure:
     return fig
 
 
-def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 120) -> None:
+def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 120,
+                text: dict[str, str] | None = None) -> None:
     """Write ``fig`` as PNG to ``path`` atomically (a figure with a layout engine
-    is laid out at ``dpi`` and left so, without the engine: drawn once).
+    is laid out at ``dpi`` and left so, without the engine: drawn once), with
+    ``text`` (keyword: value, e.g. :func:`mcrt.core.provenance.png_text`) as the
+    PNG's text chunks.
 
     Ctrl-C and termination signals wait until the file is written: raised inside
     matplotlib's drawing, where its C++ code converts Python objects, the
@@ -57,7 +60,7 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 120) -> No
             fig.set_dpi(dpi)
             engine.execute(fig)
             fig.set_layout_engine(None)
-        fig.savefig(tmp, format="png", dpi=dpi)
+        fig.savefig(tmp, format="png", dpi=dpi, metadata=text)
 
 
 def plot_point_set(ax: Axes, points: np.ndarray, grid: int | None = None,

@@ -53,6 +53,7 @@ from typing import Any
 
 from ..core.atomic import atomic_path, ensure_writable_dir
 from ..core.jsonfile import json_safe, write_json
+from ..core.provenance import png_text
 from .plots import save_figure
 from .report_tables import (
     cell_header,
@@ -347,24 +348,25 @@ def write_report(result: StudyResult, directory: str | os.PathLike) -> dict[str,
     files = report_files(directory, [s.name for s in result.config.scenes])
     write_results_csv(result, files["csv"])
     write_results_json(result, files["json"])
+    text = png_text({"command": result.command} if result.command else {})
     if result.scenes:
         for axis, key in (("spp", "error_vs_spp"), ("seconds", "error_vs_time")):
-            save_figure(error_figure(result, axis), files[key], dpi=110)
-        save_figure(summary_figure(result), files["summary"], dpi=100)
+            save_figure(error_figure(result, axis), files[key], dpi=110, text=text)
+        save_figure(summary_figure(result), files["summary"], dpi=100, text=text)
     else:  # interrupted before the first reference: nothing to plot
         for key in ("error_vs_spp", "error_vs_time", "summary"):
             files.pop(key)
     for scene in result.config.scenes:
         if any(s == scene.name for s, _ in result.images):
             save_figure(images_figure(result, scene.name), files[f"images_{scene.name}"],
-                        dpi=110)
+                        dpi=110, text=text)
         else:
             files.pop(f"images_{scene.name}")
     links = write_exrs(result, directory)
     viewer_data = write_viewer_data(result, directory, links)
-    text = render_html(result, files, viewer_data)
+    html = render_html(result, files, viewer_data)
     with atomic_path(files["report"]) as tmp, open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
+        f.write(html)
     return files
 
 

@@ -10,7 +10,14 @@ from pathlib import Path
 
 from ..analysis.metrics import rel_mse
 from ..core.atomic import atomic_path
-from ..core.provenance import COMMAND, absolute, command_text, scene_facts, software
+from ..core.provenance import (
+    COMMAND,
+    absolute,
+    command_text,
+    png_text,
+    scene_facts,
+    software,
+)
 from ..core.render import FilmRender, render_film
 from ..core.sampling import check_sampler_name, make_sampler
 from ..core.timing import run_interleaved, summarise
@@ -107,9 +114,10 @@ def run(args: argparse.Namespace) -> int:
             result, summary = results[name], summarise(timing)
             error = rel_mse(result.rgb, reference.rgb)
             stem_out = out / f"{stem}_{name}"
+            header = _header(paths, stem, name, spp, 1)
             write_exr(stem_out.with_suffix(".exr"), {"rgb": result.image},
-                      {**_header(paths, stem, name, spp, 1), "spp": result.spp})
-            write_png(stem_out.with_suffix(".png"), result.rgb)
+                      {**header, "spp": result.spp})
+            write_png(stem_out.with_suffix(".png"), result.rgb, text=png_text(header))
             rows.append({"scene": stem, "sampler": name, "spp": result.spp,
                          "seconds": round(summary.median, 4),
                          "seconds_spread": round(summary.spread, 4), "rounds": summary.n,
@@ -120,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"[{stem}] {name:13s} spp {result.spp:5d}  time {summary.median:6.2f} s "
                   f"+- {summary.spread:.2f}  relMSE {error:.3e}{doubt}", flush=True)
         sheet.append((f"reference ({reference.spp} spp)", reference.rgb))
-        write_contact_sheet(out / f"{stem}_comparison.png", sheet, columns=3)
+        write_contact_sheet(out / f"{stem}_comparison.png", sheet, columns=3,
+                            text=png_text({}))
 
     with atomic_path(out / "results.csv") as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))

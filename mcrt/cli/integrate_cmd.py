@@ -16,6 +16,7 @@ from ..analysis.integrate import (
 from ..core.atomic import atomic_path
 from ..core.jsonfile import write_json
 from ..core.progress import Progress
+from ..core.provenance import png_text
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
 from . import SUMMARIES, _common, _integrate_peers
@@ -228,5 +229,5 @@ def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) 
               for name, conv in results.items() if conv.points]
     plots.plot_convergence(fig.add_subplot(), series,
                            title=f"MSE of the {integrand.name} estimate (slope in legend)")
-    plots.save_figure(fig, stem.with_suffix(".png"))
+    plots.save_figure(fig, stem.with_suffix(".png"), text=png_text(record))
     print(f"wrote {stem.name}.png, .csv and .json to {out}")

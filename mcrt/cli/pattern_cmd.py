@@ -13,6 +13,7 @@ import numpy as np
 from ..analysis import patterns
 from ..core.atomic import atomic_path
 from ..core.jsonfile import write_json
+from ..core.provenance import png_text
 from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..errors import McrtError
 from ..samplers.base import is_mcrt_sampler
@@ -181,18 +182,19 @@ def _write_outputs(out: Path, name: str, points: np.ndarray, report: patterns.Pa
 
     fig = plots.new_figure(4.2, 4.2)
     points_axes(fig.add_subplot())
-    plots.save_figure(fig, out / "points.png")
+    text = png_text(summary)
+    plots.save_figure(fig, out / "points.png", text=text)
 
     spectrum_title = f"power spectrum ({report.spectrum_sets} pixels)"
     fig = plots.new_figure(5.0, 4.2)
     plots.plot_spectrum(fig.add_subplot(), report.spectrum, n, title=f"{title}\n{spectrum_title}")
-    plots.save_figure(fig, out / "spectrum.png")
+    plots.save_figure(fig, out / "spectrum.png", text=text)
 
     fig = plots.new_figure(5.0, 5.0)
     ax_p, ax_a = fig.subplots(2, 1, sharex=True)
     plots.plot_radial_power(ax_p, report.radial, title=f"{title}\nradially averaged power")
     plots.plot_anisotropy(ax_a, report.radial)
-    plots.save_figure(fig, out / "radial.png")
+    plots.save_figure(fig, out / "radial.png", text=text)
 
     fig = plots.new_figure(15.0, 3.8)
     axes = fig.subplots(1, 4)
@@ -200,7 +202,7 @@ def _write_outputs(out: Path, name: str, points: np.ndarray, report: patterns.Pa
     plots.plot_spectrum(axes[1], report.spectrum, n, title=spectrum_title, colorbar=False)
     plots.plot_radial_power(axes[2], report.radial, title="radially averaged power")
     plots.plot_anisotropy(axes[3], report.radial, title="anisotropy")
-    plots.save_figure(fig, out / "overview.png")
+    plots.save_figure(fig, out / "overview.png", text=text)
 
     r = report.radial
     lines = ["radius,frequency,power,anisotropy_db,count"]

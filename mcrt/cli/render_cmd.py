@@ -21,7 +21,7 @@ from ..core.atomic import check_free_space, remedy
 from ..core.engine import reseeds_each_pass
 from ..core.executor import cluster_address
 from ..core.job import Checkpoint, Checkpointing, CheckpointStore, Interrupted
-from ..core.provenance import located
+from ..core.provenance import located, png_text
 from ..core.render import FilmRender, PassTasks, render_film
 from ..core.render_job import checkpoint_paths, render_key, require_render_memory
 from ..core.sampling import (
@@ -332,7 +332,7 @@ def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -
     if result.nonfinite_samples:
         layers["nonfinite"] = result.nonfinite.astype("float32")
     write_all(lambda: write_exr(exr_path, layers, meta, channels=channels),
-              lambda: write_png(png_path, result.rgb))  # linear sRGB, whatever the format
+              lambda: write_png(png_path, result.rgb, text=png_text(metadata)))  # linear sRGB
 
 
 def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
@@ -364,9 +364,9 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
         meta.pop("render_seconds", None)  # no timings: equal renders, equal files
         write_all(lambda: write_exr(exr_path, result.layers(), meta,
                                     channels=result.film_channels()),
-                  lambda: write_png(png_path, result.rgb),
+                  lambda: write_png(png_path, result.rgb, text=png_text(metadata)),
                   lambda: write_heatmap(heat_path, result.spp, settings.min_spp,
-                                        settings.max_spp))
+                                        settings.max_spp, png_text=png_text(metadata)))
 
     try:
         result = adaptive.render_adaptive(scene, sampler, settings, seed=args.seed,

@@ -69,6 +69,20 @@ def source_digest() -> str:
 SOFTWARE_KEYS = ("mcrt_source", "mitsuba_version", "drjit_version")
 
 
+def png_text(record: dict[str, Any]) -> dict[str, str]:
+    """The text chunks of a PNG mcrt writes: ``command`` (``record``'s, if it has
+    one: what makes the file again) and ``Software`` (mcrt, its source digest,
+    Mitsuba, Dr.Jit and the variant), so a picture pasted elsewhere still says
+    how it was made (``PIL.Image.open(path).text``)."""
+    now = software()
+    text = {"Software": f"mcrt {now['mcrt_version']} (source {now['mcrt_source']}), "
+                        f"Mitsuba {now['mitsuba_version']} ({now['variant']}), "
+                        f"Dr.Jit {now['drjit_version']}"}
+    if record.get(COMMAND):
+        text[COMMAND] = str(record[COMMAND])
+    return text
+
+
 def software_changes(header: dict[str, Any]) -> list[str]:
     """What differs between the software that wrote ``header`` and this process's,
     e.g. ``["mcrt_source 1a2b... (now 3c4d...)"]``; a key the file lacks (written

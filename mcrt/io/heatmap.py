@@ -74,11 +74,12 @@ def default_title(spp: np.ndarray) -> str:
 
 def write_heatmap(path, spp: np.ndarray, lo: float | None = None,
                   hi: float | None = None, title: str | None = None,
-                  colormap: str = "inferno") -> None:
+                  colormap: str = "inferno", png_text: dict[str, str] | None = None) -> None:
     """Write the heat map of ``spp`` as a PNG, atomically: the map at native
     resolution (small images enlarged by a whole factor, nearest neighbour), a
     ``title`` (default :func:`default_title`) and a log-scale colour bar from
-    ``lo`` to ``hi`` (default: the counts' range)."""
+    ``lo`` to ``hi`` (default: the counts' range); ``png_text`` as the PNG's
+    text chunks (:func:`mcrt.core.provenance.png_text`)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import LogNorm
     from matplotlib.figure import Figure
@@ -116,7 +117,7 @@ def write_heatmap(path, spp: np.ndarray, lo: float | None = None,
     colorbar.minorticks_off()
     colorbar.set_label("samples per pixel (log scale)", fontsize=9)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
+        fig.savefig(tmp, format="png", dpi=dpi, metadata=png_text)
 
 
 __all__ = ["default_title", "display_scale", "heatmap", "spp_ticks", "thin_stretch",

@@ -30,7 +30,7 @@ import math
 import os
 import struct
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -166,12 +166,24 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
         struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
 
 
-def _png_chunks(rgb8: np.ndarray) -> Iterator[bytes]:
-    """An 8-bit RGB image as PNG (ISO/IEC 15948): signature, IHDR, IDAT chunks
-    (rows with filter type 0, deflated at level 1 in bounded pieces), IEND."""
+def _text_chunk(keyword: str, text: str) -> bytes:
+    """An uncompressed iTXt chunk (UTF-8 text: paths need not be Latin-1); the
+    keyword is 1-79 Latin-1 characters."""
+    key = keyword.encode("latin-1")
+    if not 1 <= len(key) <= 79:
+        raise ValueError(f"a PNG text keyword has 1 to 79 characters, got {keyword!r}")
+    return _chunk(b"iTXt", key + b"\0\0\0\0\0" + text.encode("utf-8"))
+
+
+def _png_chunks(rgb8: np.ndarray, text: Mapping[str, str] | None = None) -> Iterator[bytes]:
+    """An 8-bit RGB image as PNG (ISO/IEC 15948): signature, IHDR, an iTXt chunk
+    per ``text`` entry, IDAT chunks (rows with filter type 0, deflated at level 1
+    in bounded pieces), IEND."""
     height, width = rgb8.shape[:2]
     yield b"\x89PNG\r\n\x1a\n"
     yield _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+    for keyword, value in (text or {}).items():
+        yield _text_chunk(keyword, value)
     deflate = zlib.compressobj(1)  # fast: a preview, not an archive
     rows = np.zeros((min(ROWS_PER_CHUNK, height), 1 + 3 * width), np.uint8)  # byte 0: filter 0
     for top in range(0, height, ROWS_PER_CHUNK):
@@ -184,27 +196,35 @@ def _png_chunks(rgb8: np.ndarray) -> Iterator[bytes]:
     yield _chunk(b"IEND", b"")
 
 
-def _write_rgb8(path, rgb8: np.ndarray) -> None:
+def _write_rgb8(path, rgb8: np.ndarray, text: Mapping[str, str] | None = None) -> None:
     """Write an ``(H, W, 3)`` uint8 image as PNG to ``path`` atomically."""
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        for piece in _png_chunks(np.ascontiguousarray(rgb8, dtype=np.uint8)):
+        for piece in _png_chunks(np.ascontiguousarray(rgb8, dtype=np.uint8), text):
             f.write(piece)
 
 
-def _save_png(path, image) -> None:
-    """Write a PIL image as PNG to ``path`` atomically."""
-    with atomic_path(path) as tmp:
-        image.save(tmp, format="PNG", compress_level=1)  # fast; a preview, not an archive
+def _save_png(path, image, text: Mapping[str, str] | None = None) -> None:
+    """Write a PIL image as PNG to ``path`` atomically, with ``text`` as iTXt chunks."""
+    from PIL.PngImagePlugin import PngInfo
+
+    info = PngInfo()
+    for keyword, value in (text or {}).items():
+        info.add_itxt(keyword, value)
+    with atomic_path(path) as tmp:  # fast; a preview, not an archive
+        image.save(tmp, format="PNG", compress_level=1, pnginfo=info)
 
 
-def write_png(path: str | os.PathLike, rgb_linear, exposure: float = 0.0) -> None:
-    """Write linear RGB as an 8-bit sRGB PNG (display rule above), atomically.
+def write_png(path: str | os.PathLike, rgb_linear, exposure: float = 0.0,
+              text: Mapping[str, str] | None = None) -> None:
+    """Write linear RGB as an 8-bit sRGB PNG (display rule above), atomically;
+    ``text`` (keyword: value) goes into iTXt chunks, e.g.
+    :func:`mcrt.core.provenance.png_text`'s command and software.
 
     Raises :class:`~mcrt.core.atomic.ImageIOError` (an
     :class:`~mcrt.errors.McrtError`) when ``path`` cannot be written; a previous
     file at ``path`` is then left intact.
     """
-    _write_rgb8(path, encode_srgb(rgb_linear, exposure))
+    _write_rgb8(path, encode_srgb(rgb_linear, exposure), text)
 
 
 def _font(size: int):
@@ -282,10 +302,12 @@ def contact_sheet(images: Sequence[tuple[str, object]], columns: int | None = No
 
 def write_contact_sheet(path: str | os.PathLike, images: Sequence[tuple[str, object]],
                         columns: int | None = None, *, exposure: float = 0.0, zoom: int = 1,
-                        title: str | None = None, font_size: int = 14) -> None:
-    """Write :func:`contact_sheet` ``(images, columns, ...)`` as a PNG, atomically."""
+                        title: str | None = None, font_size: int = 14,
+                        text: Mapping[str, str] | None = None) -> None:
+    """Write :func:`contact_sheet` ``(images, columns, ...)`` as a PNG, atomically
+    (``text`` as for :func:`write_png`)."""
     _save_png(path, contact_sheet(images, columns, exposure=exposure, zoom=zoom, title=title,
-                                  font_size=font_size))
+                                  font_size=font_size), text)
 
 
 __all__ = ["NONFINITE_COLOUR", "SRGB_LINEAR_LIMIT", "contact_sheet", "encode_srgb",

@@ -35,9 +35,10 @@ from mcrt.analysis.study.fields import (
     record,
 )
 from mcrt.cli import main
+from mcrt.core.provenance import png_text
 from mcrt.core.stats import PixelStats
 from mcrt.samplers import ALL_SAMPLERS
-from tests.conftest import CHECKERBOARD, ROOT, scene_xml, study_toml
+from tests.conftest import CHECKERBOARD, ROOT, png_text_of, scene_xml, study_toml
 
 QUICK = ROOT / "configs" / "quick.toml"
 FULL = ROOT / "configs" / "full.toml"
@@ -175,6 +176,8 @@ def test_a_film_under_32_pixels_is_studied_without_an_aliasing_score(tmp_path, c
     # results.json says how to run the study again, from any folder
     assert data["command"].split() == ["mcrt", "--variant", "llvm_ad_rgb", "compare",
                                        str(path.resolve())]
+    figures = sorted((tmp_path / "out").glob("*.png"))  # ... and so does every figure
+    assert len(figures) == 4 and all(png_text_of(f) == png_text(data) for f in figures)
     for cell in data["cells"]:
         assert cell["aliasing"] == "n/a" and cell["mse"] > 0 and cell["delta_e"] > 0
         assert cell["aliasing_ratio"] is None or math.isnan(cell["aliasing_ratio"])

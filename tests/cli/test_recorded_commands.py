@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from mcrt import __version__
-from tests.conftest import run_cli
+from mcrt.core.provenance import png_text
+from tests.conftest import png_text_of, run_cli
 
 CASES = [
     (["pattern", "pointset", "--spp", "16", "--pixels", "16", "--seed", "2",
@@ -56,6 +57,8 @@ def test_a_json_output_records_the_command_that_makes_it_again(capsys, tmp_path,
     first = json.loads((tmp_path / "here" / "first" / name).read_text())
     assert first["mcrt_version"] == __version__ and first["variant"] == "llvm_ad_rgb"
     words = shlex.split(first["command"])
+    for png in (tmp_path / "here" / "first").glob("*.png"):  # each figure says so too
+        assert png_text_of(png) == png_text(first), png
     assert words[:4] == ["mcrt", "--variant", "llvm_ad_rgb", argv[0]] and "-o" not in words
     monkeypatch.chdir(tmp_path / "there")  # a colleague's folder, another output
     again_code, _, err = run_cli(capsys, "-q", *words[1:], "-o", "again dir")

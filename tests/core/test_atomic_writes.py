@@ -229,8 +229,8 @@ def test_png_image(tmp_path, monkeypatch, error):
     before = {path: path.read_bytes()}
     real = png_module._png_chunks
 
-    def chunks(rgb8):  # the whole file, then the failure (before the rename)
-        yield from real(rgb8)
+    def chunks(rgb8, text=None):  # the whole file, then the failure (before the rename)
+        yield from real(rgb8, text)
         raise error
 
     monkeypatch.setattr(png_module, "_png_chunks", chunks)

@@ -19,10 +19,10 @@ import OpenEXR
 import pytest
 
 from mcrt import __version__
-from mcrt.core.provenance import source_digest
+from mcrt.core.provenance import png_text, source_digest
 from mcrt.core.scene_files import scene_digest
 from mcrt.io import read_exr, write_exr
-from tests.conftest import run_cli
+from tests.conftest import png_text_of, run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -116,7 +116,13 @@ def test_a_default_name_never_replaces_a_file_mcrt_did_not_write(capsys):
     ["--spp", "4"],  # the scene's own sampler
 ], ids=["params-seed", "effect-override", "multisample", "adaptive", "scene-sampler"])
 def test_from_renders_any_render_again_bit_for_bit(capsys, argv):
+    """...and every PNG of the render (the preview; an adaptive render's heat map)
+    carries the EXR's command and the software in its text chunks."""
     assert run_cli(capsys, "render", str(CORNELL), "-D", "res=16", *argv, "-o", "first")[0] == 0
+    pngs = sorted(Path().glob("first*.png"))
+    assert len(pngs) == (2 if "--adaptive" in argv else 1)
+    for png in pngs:
+        assert png_text_of(png) == png_text({"command": _header(Path("first.exr"))["command"]})
     code, out, _ = _again(capsys, Path("first.exr"))
     assert code == 0, out
     assert "the same pixels as first.exr, bit for bit" in out

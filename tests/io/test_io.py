@@ -227,7 +227,7 @@ def test_png_failure_mid_write_keeps_previous_file(tmp_path, monkeypatch):
 
     import mcrt.io.png as png_module
 
-    def crash(rgb8):  # the disk fills after the first bytes
+    def crash(rgb8, text=None):  # the disk fills after the first bytes
         yield b"\x89PNG half"
         raise OSError(28, "No space left on device")
 
