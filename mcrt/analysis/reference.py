@@ -79,8 +79,9 @@ from ..core.sampling import check_sampler_name, make_sampler, sampler_fingerprin
 from ..core.scene_files import SceneBundle, SceneSource, scene_digest
 from ..core.stats import PixelStats
 from ..core.trace import film_grid_size
-from ..errors import McrtError, SamplerError
+from ..errors import McrtError, SamplerError, whole_number
 from ..render.loaded import planned_scene
+from ..render.scene import check_scene_file, scene_params
 from ..samplers.kit import hash_keys_int
 from .pass_plan import DEFAULT_PASS_SPP, LANE_BUDGET, PassPlan, plan_passes
 from .reference_cache import (
@@ -296,12 +297,12 @@ def _setup(request: ReferenceRequest) -> _Setup:
     """Check the request, plan the scene (kept for this process's tasks) and its
     passes: every user error surfaces here, before any pass."""
     scene_path, spp, sampler, seed = request.scene_path, request.spp, request.sampler, request.seed
-    params, spp_per_pass = dict(request.params or {}), request.spp_per_pass
-    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
-        raise McrtError(f"a reference needs at least 1 sample per pixel, got {spp!r}")
-    if not 0 <= int(seed) < 2 ** 32:
-        raise McrtError(f"seed must be in [0, 2^32), got {seed}")
-    spp, seed = int(spp), int(seed)
+    params, spp_per_pass = scene_params(request.params), request.spp_per_pass
+    check_scene_file(scene_path)  # (a path: the cache keys the file's content)
+    if isinstance(spp, int | np.integer) and not isinstance(spp, bool) and spp < 1:
+        raise McrtError(f"a reference needs at least 1 sample per pixel, got {spp}")
+    spp = whole_number(spp, "a reference's spp (samples per pixel)")
+    seed = whole_number(seed, "a reference's seed", 0, 2 ** 32)
     check_sampler_name(sampler)
     # The scene `mcrt render` renders (motion too), kept for this process's tasks.
     planned = planned_scene(scene_path, params)

@@ -40,10 +40,12 @@ from .engine import (
     supported_film,
 )
 from .executor import Executor, cluster_status
+from .inputs import check_sampler, check_scene, check_seed, check_sensor, check_spp
 from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .pass_replay import PassReplay
 from .progress import Progress
+from .sampling import make_sampler
 
 if TYPE_CHECKING:  # the statistics' types: imported by render_stats when it runs
     from .filtered import FilteredMomentsAccumulator, FilteredStats
@@ -184,12 +186,25 @@ def channel_names(film: mi.Film, count: int, aovs: list[str] | None = None) -> l
     return names
 
 
-def _prepare(scene: mi.Scene, sampler: mi.Sampler | None, spp: int | None,
+def _arguments(who: str, scene: mi.Scene, sampler: mi.Sampler | str | None, spp: int | None,
+               seed: int, sensor: int) -> tuple[mi.Sampler, int | None, int, int]:
+    """A caller's arguments checked (:mod:`mcrt.core.inputs`), a sampler's name
+    made into the sampler (at ``spp``, else the scene's sample count)."""
+    check_scene(scene, who)
+    spp, seed, sensor = check_spp(spp, who), check_seed(seed, who), check_sensor(scene, sensor, who)
+    chosen = check_sampler(sampler, who)
+    if chosen is None:
+        chosen = scene.sensors()[sensor].sampler()
+    elif isinstance(chosen, str):
+        chosen = make_sampler(chosen, spp or scene.sensors()[sensor].sampler().sample_count())
+    return chosen, spp, seed, sensor
+
+
+def _prepare(scene: mi.Scene, sampler: mi.Sampler, spp: int | None,
              sensor: int) -> tuple[mi.Film, mi.Sampler, int]:
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
     film = supported_film(sensor_obj.film())
-    sampler = sampler if sampler is not None else sensor_obj.sampler()
     if spp is not None and spp != sampler.sample_count():
         sampler = sampler.clone()  # the caller's (or the scene's) keeps its count
         sampler.set_sample_count(spp)
@@ -223,13 +238,15 @@ class PassTasks:
     executor: Executor | None = None
 
 
-def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | None = None,
+def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
+                spp: int | None = None,
                 seed: int = 0, sensor: int = 0, progress: bool = False,
                 max_lanes: int | None = None, passes: int | None = None,
                 on_pass: Callable[[int, int], None] | None = None,
                 checkpoints: Checkpointing | None = None,
                 tasks: PassTasks | None = None) -> FilmRender:
-    """Render ``scene`` with ``sampler`` (default: the sensor's) at ``spp``.
+    """Render ``scene`` with ``sampler`` (default: the sensor's; a name such as
+    ``"jittered"`` makes that sampler) at ``spp`` (default: the sampler's count).
 
     Returns the developed film (bit-identical across runs and thread counts),
     the effective sample count (samplers may round it), passes, wall time and
@@ -246,6 +263,7 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | None = None, spp: int | N
     and replayed afterwards with each new seed (:mod:`mcrt.core.replay`): the same
     bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
     """
+    sampler, spp, seed, sensor = _arguments("render_film", scene, sampler, spp, seed, sensor)
     kept = checkpoints or Checkpointing()
     resume, save, save_every = kept.resume, kept.save, kept.every
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
@@ -396,7 +414,8 @@ def _run_tasks(run: PassRun, accumulator: FilmAccumulator, job: Job,
         accumulator.restore(total)
 
 
-def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, seed: int = 0,
+def render_stats(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
+                 spp: int | None = None, seed: int = 0,
                  sensor: int = 0, progress: bool = False, max_lanes: int | None = None,
                  passes: int | None = None,
                  on_pass: Callable[[int, int], None] | None = None,
@@ -407,9 +426,10 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler, spp: int | None = None, s
     was drawn in (box filter), whatever the scene's reconstruction filter.
     With ``filtered`` and a film whose filter is not a box, the statistics are
     instead :class:`~mcrt.core.filtered.FilteredStats` of the film's developed
-    pixels (its own filter, float64). ``max_lanes``, ``passes`` and
+    pixels (its own filter, float64). ``sampler``, ``max_lanes``, ``passes`` and
     ``on_pass`` as in :func:`render_film`.
     """
+    sampler, spp, seed, sensor = _arguments("render_stats", scene, sampler, spp, seed, sensor)
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
     run = PassRun(fitted_shape(width * height, spp, max_lanes, passes, STATS_BYTES_PER_LANE,

@@ -53,7 +53,7 @@ from .._gc import collection_held_back
 from .accumulators import FilmAccumulator
 from .engine import PassRun, PassShape, run_passes, sampling_integrator
 from .environ import env_switch
-from .sampling import sampler_fingerprint, sampler_name, sampler_params
+from .sampling import describe, sampler_fingerprint, sampler_name, sampler_params
 from .traced_state import sampler_key
 from .traced_state import why_not as sampler_why_not
 
@@ -330,7 +330,7 @@ def render_key(scene: mi.Scene, sampler: mi.Sampler, shape: Any, sensor: int,
     if identity is None:  # Mitsuba's: what a clone of it draws (some hide their base seed)
         probe, fixed = sampler.clone(), 0x5EED
         probe.seed(fixed, 4)  # type: ignore[arg-type]  # the stub wants a UInt array
-        identity = tuple(float(v) for v in probe.next_1d()) + (str(sampler),)
+        identity = tuple(float(v) for v in probe.next_1d()) + (describe(sampler),)
     params = tuple(sorted((k, repr(v)) for k, v in sampler_params(sampler).items()))
     return (mi.variant(), id(scene), sensor, name, params, identity, sampler.sample_count(),
             sampler_fingerprint(name, sampler_params(sampler)), shape, channels,

@@ -21,7 +21,7 @@ from typing import Any
 
 import mitsuba as mi
 
-from ..errors import SamplerError
+from ..errors import ArgumentTypeError, SamplerError, whole_number
 from ..samplers import registry
 from ..samplers.registry import names
 
@@ -73,6 +73,11 @@ def check_sampler_name(name: str) -> str:
 
     A name mcrt does not know yet first has the installed packages' samplers
     and ``$MCRT_PLUGINS`` loaded (:func:`mcrt.plugins.autoload`, once)."""
+    if not isinstance(name, str):
+        what = ("a sampler object: pass its name, e.g. sampler_name(sampler)"
+                if isinstance(name, mi.Sampler) else f"{name!r} ({type(name).__name__})")
+        raise ArgumentTypeError(f"a sampler name (a string such as 'jittered') is needed here, "
+                                f"got {what}")
     known = names()
     if name not in known:
         from .. import plugins
@@ -126,11 +131,15 @@ def make_sampler(name: str, spp: int, base_seed: int = 0, **params: Any) -> mi.S
         if key in params:
             raise SamplerError(f"{name}: the {key} is a setting of the render ({option}), not a "
                                f"sampler parameter")
+    spp = whole_number(spp, f"{name}: the samples per pixel")
     own = {"seed": int(base_seed)} if base_seed else {}
     try:
-        sampler = mi.load_dict({"type": name, "sample_count": int(spp), **own, **params})
+        sampler = mi.load_dict({"type": name, "sample_count": spp, **own, **params})
     except Exception as error:
-        raise SamplerError(f"cannot create sampler {name!r}: {mitsuba_message(error)}") from None
+        message = mitsuba_message(error)
+        if "not found" in message and registry.variant_hint():
+            message = registry.variant_hint()
+        raise SamplerError(f"cannot create sampler {name!r}: {message}") from None
     lost = sorted(set(params) - set(sampler_params(sampler)))
     if lost and registry.info(name).kind == "user":  # its fork() and clone() lose them too
         raise SamplerError(f"{name}: its _parameters() does not return {', '.join(lost)}, so a "
@@ -139,13 +148,23 @@ def make_sampler(name: str, spp: int, base_seed: int = 0, **params: Any) -> mi.S
     return sampler
 
 
+def describe(sampler: mi.Sampler) -> str:
+    """``str(sampler)``, or "" for a Python ``mi.Sampler`` subclass without a
+    ``to_string()``: nanobind's trampoline then raises RuntimeError (``lookup
+    failed``) instead of falling back to the base class's description."""
+    try:
+        return str(sampler)
+    except RuntimeError:
+        return ""
+
+
 def base_seed(sampler: mi.Sampler) -> int:
     """The ``seed`` property a sampler object was made with (mcrt's samplers, and
     Mitsuba's that print it); 0 when it cannot be read."""
     own = getattr(sampler, "_base_seed", None)
     if own is not None:
         return int(own)
-    found = re.search(r"base_seed = (\d+)", str(sampler))
+    found = re.search(r"base_seed = (\d+)", describe(sampler))
     return int(found.group(1)) if found else 0
 
 
@@ -180,7 +199,7 @@ def sampler_params(sampler: mi.Sampler) -> dict[str, Any]:
     if own is not None:
         return dict(own())
     params: dict[str, Any] = {}
-    for line in str(sampler).splitlines()[1:]:  # "  jitter = 1" (Mitsuba's)
+    for line in describe(sampler).splitlines()[1:]:  # "  jitter = 1" (Mitsuba's)
         key, sep, value = line.strip().partition(" = ")
         if sep and key not in _NOT_PARAMETERS:
             params[key] = value.strip()

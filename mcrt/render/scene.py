@@ -8,17 +8,19 @@ render plan may edit) and built by
 
 from __future__ import annotations
 
+import os
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import mitsuba as mi
 
 from ..core.sampling import mitsuba_message
-from ..errors import SceneError
+from ..errors import ArgumentTypeError, SceneError
+from ..samplers import registry
 
 
 def parse_defines(items: list[str] | None) -> dict[str, str]:
@@ -42,6 +44,11 @@ def parse_defines(items: list[str] | None) -> dict[str, str]:
 def check_scene_file(path: str | Path) -> Path:
     """``path`` as a Path if it is an existing regular file, else a one-line
     :class:`SceneError` (missing, a directory, a name too long, ...)."""
+    if not isinstance(path, (str, os.PathLike)):
+        what = ("a loaded mi.Scene: give the file it was loaded from (mcrt keys its caches "
+                "by the file's content)" if isinstance(path, mi.Scene)
+                else f"{path!r} ({type(path).__name__})")
+        raise ArgumentTypeError(f"a scene file path (str or Path) is needed here, got {what}")
     path = Path(path)
     try:
         if not path.exists():
@@ -82,6 +89,8 @@ def _explain(message: str, path: Path) -> str:
     """Mitsuba's message, with the scene's parameters listed when a ``-D`` is unused,
     and a pointer to ``--plugin`` when the scene names a sampler nobody registered."""
     unknown = re.search(r'sampler plugin of type "(\w+)".*Plugin "\1" not found', message)
+    if unknown and unknown.group(1) in registry.names() and registry.variant_hint():
+        return f"{message}; {registry.variant_hint()}"
     if unknown:
         return (f"{message}; if {unknown.group(1)!r} is your own sampler, load the file that "
                 f"registers it with --plugin FILE.py (or $MCRT_PLUGINS; see docs/extending.md)")
@@ -199,10 +208,24 @@ def _not_a_scene(path: Path) -> SceneError:
 RFILTER_PARAM = "mcrt.rfilter"
 
 
+def scene_params(params: Mapping[str, Any] | None) -> dict[str, Any]:
+    """A copy of a caller's scene ``params`` (``{"res": "32"}``), or a one-line
+    error for anything else: the ``["res=32"]`` of the command line is turned
+    into a dict by :func:`parse_defines`."""
+    if params is None:
+        return {}
+    if not isinstance(params, Mapping):
+        hint = (f": parse_defines({params!r}) makes one from key=value strings"
+                if isinstance(params, list | tuple) else "")
+        raise ArgumentTypeError(f"scene params must be a dict of parameter names to values, "
+                                f"e.g. {{'res': 32}}, got {type(params).__name__}{hint}")
+    return dict(params)
+
+
 def read_scene(path: str | Path, params: dict[str, str] | None = None) -> SceneDescription:
     """Parse a Mitsuba XML scene, substituting ``$key`` parameters from ``params``
     (:data:`RFILTER_PARAM` replaces the film's reconstruction filter)."""
-    params = dict(params or {})
+    params = scene_params(params)
     rfilter = params.pop(RFILTER_PARAM, None)
     path = check_scene_file(path)
     variant = mi.variant()

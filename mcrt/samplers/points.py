@@ -10,13 +10,15 @@ are seeded with their own pixel-major layout over pixels ``0 .. max(pixels)``.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
+from typing import cast
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..errors import SamplerError
+from ..errors import SamplerError, whole_number
 from .base import is_mcrt_sampler
 
 #: Largest pixel index accepted for Mitsuba's built-in samplers (their layout
@@ -43,9 +45,11 @@ def point_sets(sampler: str | mi.Sampler, pixels: Sequence[int] | int, spp: int,
     """
     if ndim not in (1, 2):
         raise ValueError("ndim must be 1 or 2")
-    if isinstance(pixels, int):
-        pixels = range(pixels)
-    pixel_ids = np.asarray(list(pixels), dtype=np.int64)
+    spp = whole_number(spp, "point_sets: spp")
+    if isinstance(pixels, numbers.Integral):  # a count (numpy's integers too)
+        pixel_ids = np.arange(whole_number(pixels, "point_sets: pixels (a count)"))
+    else:
+        pixel_ids = np.asarray(list(cast(Sequence[int], pixels)), dtype=np.int64)
     if pixel_ids.size == 0 or pixel_ids.min() < 0 or pixel_ids.max() >= 2**32:
         raise SamplerError("pixels must be a non-empty list of indices in [0, 2^32)")
     instance: mi.Sampler

@@ -180,6 +180,8 @@ def _register_one(name: str) -> None:
     """Tell Mitsuba (active variant) how to build ``name``: the registry's class
     for it at construction time (so a re-created class takes over at once)."""
     def construct(props: mi.Properties, name: str = name) -> mi.Sampler:
+        if variant_hint():  # the classes are another variant's: they would not render here
+            raise SamplerError(variant_hint())
         return _CLASSES[name](props)
     mi.register_sampler(name, construct)
 
@@ -195,6 +197,9 @@ def register_class(cls: type, name: str | None = None, *, origin: str = "",
     (plugin files pass one; see :mod:`mcrt.plugins`). ``fingerprint`` defaults to
     a digest of the plugin file, else of the class's source.
     """
+    if isinstance(cls, mi.Sampler):
+        raise SamplerError(f"register_class: {type(cls).__name__}(...) is a sampler object: "
+                           f"register its class, sampler={type(cls).__name__}")
     if not (isinstance(cls, type) and issubclass(cls, mi.Sampler)):
         raise SamplerError(f"register_class: {cls!r} is not a subclass of mi.Sampler "
                            f"(for numpy point sets use mcrt.register_sampler(name, points=...))")
@@ -202,6 +207,10 @@ def register_class(cls: type, name: str | None = None, *, origin: str = "",
     if not name:
         raise SamplerError(f"register_class: {cls.__name__} has no plugin_name; pass a name")
     _check_name(name, replace=kind == "mcrt")
+    missing = _missing_methods(cls) if kind != "mcrt" else []
+    if missing:
+        raise SamplerError(f"{name}: {cls.__name__} does not define {', '.join(missing)}, "
+                           f"which renders call (see docs/extending.md)")
     source = _SOURCES[-1] if _SOURCES and kind != "mcrt" else None
     if source is not None:
         origin = origin or source.origin
@@ -221,6 +230,27 @@ def register_class(cls: type, name: str | None = None, *, origin: str = "",
     if rebuild is not None:
         _REBUILDS[name] = rebuild
     return name
+
+
+#: What a user's class must define itself: a McrtSampler subclass its two pure
+#: functions (the base's raise NotImplementedError, with no message, in a render);
+#: a plain ``mi.Sampler`` subclass Mitsuba's sampler contract (without ``seed`` it
+#: rendered a wrong image without a word, without ``clone`` it failed in C++).
+_MCRT_METHODS = ("_sample_1d", "_sample_2d")
+_SAMPLER_METHODS = ("seed", "next_1d", "next_2d", "clone", "fork")
+
+
+def _missing_methods(cls: type) -> list[str]:
+    """The methods of :data:`_MCRT_METHODS` / :data:`_SAMPLER_METHODS` that
+    ``cls`` leaves to mcrt's base class or to Mitsuba's."""
+    def owner(method: str) -> type | None:
+        return next((c for c in cls.__mro__ if method in vars(c)), None)
+
+    base = f"{__package__}.base"
+    if any(c.__name__ == "McrtSampler" and c.__module__ == base for c in cls.__mro__):
+        return [m for m in _MCRT_METHODS if getattr(owner(m), "__module__", base) == base]
+    return [m for m in _SAMPLER_METHODS
+            if getattr(owner(m), "__module__", "mitsuba").split(".")[0] == "mitsuba"]
 
 
 def code_fingerprint(cls: type, origin: str) -> str:
@@ -261,6 +291,16 @@ def register_with_mitsuba() -> None:
         rebuild()
     for name in _CLASSES:
         _register_one(name)
+
+
+def variant_hint() -> str:
+    """What to do when Mitsuba does not know a registered name because the
+    active variant is not the one the samplers were last registered with (it
+    knows Python plugins per variant); "" when that is not the case."""
+    if _shipped_variant is None or _shipped_variant == mi.variant():
+        return ""
+    return (f"mcrt's samplers were registered with Mitsuba's {_shipped_variant} variant, not "
+            f"the active {mi.variant()}: call mcrt.register() after mi.set_variant()")
 
 
 def current_class(name: str) -> type:

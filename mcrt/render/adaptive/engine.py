@@ -15,12 +15,13 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.engine import deferred_interrupts, sampling_integrator, supported_film
+from ...core.inputs import check_sampler, check_scene, check_seed, check_sensor
 from ...core.job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted
 from ...core.render import in_film_format
-from ...core.sampling import bind_film_width
+from ...core.sampling import bind_film_width, make_sampler
 from ...core.stats import PixelStats
 from ...core.trace import film_grid_size
-from ...errors import McrtError
+from ...errors import ArgumentTypeError, McrtError
 from ...samplers.kit import hash_keys_int
 from . import frozen
 from .criterion import dilate, error_ratio
@@ -40,7 +41,7 @@ def _sampler_label(sampler: mi.Sampler) -> str:
     return sampler_name(sampler)
 
 
-def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
+def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
                     settings: AdaptiveSettings | None = None, seed: int = 0,
                     sensor: int | mi.Sensor = 0,
                     integrator: mi.SamplingIntegrator | None = None,
@@ -49,12 +50,13 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
                     checkpoints: Checkpointing | None = None) -> AdaptiveRender:
     """Render ``scene`` adaptively (see :mod:`mcrt.render.adaptive`).
 
-    ``sampler`` defaults to the sensor's (its type and parameters are used, not
-    its sample count; it is cloned, never modified); ``integrator`` to the
-    scene's (a sampling integrator; for an ``adaptive`` one, its nested
-    integrator, and its settings unless ``settings`` is given). ``on_pass(record)`` runs after
-    each pass; ``on_samples(pass_index, pixel_ids, position, rgb)`` receives
-    every traced wavefront as numpy arrays (for tests and visualisation).
+    ``sampler`` defaults to the sensor's (a name makes that sampler; its type and
+    parameters are used, not its sample count; it is cloned, never modified);
+    ``integrator`` to the scene's (a sampling integrator; for an ``adaptive`` one,
+    its nested integrator, and its settings unless ``settings`` is given).
+    ``on_pass(record)`` runs after each pass;
+    ``on_samples(pass_index, pixel_ids, position, rgb)`` receives every traced
+    wavefront as numpy arrays (for tests and visualisation).
 
     Ctrl-C raises :class:`~mcrt.core.job.Interrupted` with the passes finished
     so far as ``partial`` (a pass in flight is dropped whole) and the
@@ -68,10 +70,21 @@ def render_adaptive(scene: mi.Scene, sampler: mi.Sampler | None = None,
     uninterrupted one.
     """
     kept = checkpoints or Checkpointing()
-    sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+    check_scene(scene, "render_adaptive")
+    seed = check_seed(seed, "render_adaptive")
+    sensor_obj = sensor if isinstance(sensor, mi.Sensor) else \
+        scene.sensors()[check_sensor(scene, sensor, "render_adaptive")]
+    if settings is not None and not isinstance(settings, AdaptiveSettings):
+        raise ArgumentTypeError(f"render_adaptive: settings must be an AdaptiveSettings(...), "
+                                f"got {type(settings).__name__}"
+                                + (": use AdaptiveSettings(**settings)"
+                                   if isinstance(settings, dict) else ""))
     integrator, settings = _integrator_and_settings(scene, integrator, settings)
     film = supported_film(sensor_obj.film())
-    sampler = (sampler if sampler is not None else sensor_obj.sampler()).clone()
+    chosen = check_sampler(sampler, "render_adaptive")
+    if isinstance(chosen, str):  # (its type and parameters are used, not its count)
+        chosen = make_sampler(chosen, settings.min_spp)
+    sampler = (chosen if chosen is not None else sensor_obj.sampler()).clone()
     ladder = _ladder(sampler, settings)
     width, height = (int(v) for v in film_grid_size(film))
     bind_film_width(sampler, width)  # zsobol orders pixels along the film
