@@ -189,9 +189,9 @@ def run(args: argparse.Namespace) -> int:
 
     overflowed = int(np.count_nonzero(~np.isfinite(result.image).all(axis=-1)))
     if overflowed:  # non-finite samples are left out: these are finite ones that overflowed
-        log.warning("%d pixels are infinite although their samples are finite: a pass's sum "
-                    "in Mitsuba's float32 film passed 3.4e38; scale the scene's radiance down",
-                    overflowed)
+        log.warning("%d pixels are infinite although their samples are finite: their "
+                    "filtered mean, or the film's conversion of it to its pixel format, passed "
+                    "float32's 3.4e38; scale the scene's radiance down", overflowed)
     _print_shading_counts(scene)
     print(f"wrote {exr_path} and {png_path}")
     return 0
