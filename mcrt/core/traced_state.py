@@ -43,7 +43,7 @@ from ..samplers.registry import info, names
 #: McrtSampler's own state (the lane layout, the seed key, the pass), which every
 #: render sets anew: never part of a key.
 LANE_STATE = frozenset({"_base_calls", "_base_seed", "_key", "_dim", "_pass", "_pass_count",
-                        "_layout", "_lanes", "_lane_stride"})
+                        "_layout", "_lanes", "_lane_stride", "_lane_span", "_past_limit"})
 
 #: How deep the digest follows containers and plain objects.
 _DEPTH = 4

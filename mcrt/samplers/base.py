@@ -35,6 +35,9 @@ if TYPE_CHECKING:
 #: ``seed()``'s default wavefront size: "keep the previous one" (Mitsuba's -1).
 _KEEP_WAVEFRONT = 0xFFFFFFFF
 
+#: Sample indices are 32-bit: index ``2^32 + j`` would be sample ``j`` again.
+SAMPLE_INDEX_LIMIT = 1 << 32
+
 
 def _literal_or_evaluated(value) -> bool:
     return value.state in (dr.VarState.Literal, dr.VarState.Evaluated)
@@ -79,6 +82,8 @@ class McrtSampler(mi.Sampler):
         self._layout: _layout.Layout | None = None
         self._lanes: tuple[mi.UInt32, mi.UInt32] | None = None
         self._lane_stride = 0
+        self._lane_span = 1  # first sample indices lie below this (1: unknown)
+        self._past_limit = ""  # why the current pass cannot be drawn ("" if it can)
         _layout.clear_samples_per_wavefront(self)
         self.set_sample_count(self.sample_count())
 
@@ -147,6 +152,7 @@ class McrtSampler(mi.Sampler):
                                               _layout.probe_available())
         self._key = self._seed_key(seed)
         pixel, in_group = split_sample(dr.arange(mi.UInt32, wavefront), self._layout.group)
+        self._lane_span = self._layout.group
         self._set_lanes(pixel, in_group, self._layout.group)
 
     def advance(self) -> None:
@@ -186,7 +192,7 @@ class McrtSampler(mi.Sampler):
         if self._layout is not None:
             other._run_base("seed", 0, self.wavefront_size())
         for name in ("_key", "_dim", "_pass", "_pass_count", "_layout", "_lanes",
-                     "_lane_stride"):
+                     "_lane_stride", "_lane_span", "_past_limit"):
             setattr(other, name, getattr(self, name))
         return other
 
@@ -214,6 +220,7 @@ class McrtSampler(mi.Sampler):
         _layout.take_samples_per_wavefront(self)
         self._layout = _layout.Layout(dr.width(pixel), 1)
         self._key = self._seed_key(seed)
+        self._lane_span = 1  # the lanes' first samples are device values: checked at 0
         self._set_lanes(pixel, sample, self.sample_count() if stride is None else int(stride))
 
     def frozen_inputs(self) -> tuple:
@@ -238,6 +245,15 @@ class McrtSampler(mi.Sampler):
     # -- internals -------------------------------------------------------------
     def _restart(self, pass_count: int | mi.UInt32) -> None:
         self._pass_count = pass_count
+        self._past_limit = ""
+        if isinstance(pass_count, int):
+            end = pass_count * self._lane_stride + self._lane_span
+            if end > SAMPLE_INDEX_LIMIT:
+                self._past_limit = (
+                    f"{self.plugin_name}: pass {pass_count} of {self._lane_stride} samples per "
+                    f"pixel reaches sample index {end - 1}, past the 32-bit indices' last "
+                    f"({SAMPLE_INDEX_LIMIT - 1}): it would repeat the pixel's first samples; "
+                    f"for more samples, average renders with different seeds")
         self._pass = dr.opaque(mi.UInt32, pass_count) if isinstance(pass_count, int) else \
             mi.UInt32(pass_count)
         self._dim = dr.opaque(mi.UInt32, 0)
@@ -270,12 +286,20 @@ class McrtSampler(mi.Sampler):
     def _next_dimension(self) -> tuple[mi.UInt32, mi.UInt32]:
         """Key of (seed, pixel, dimension) and sample index per lane; consumes
         the dimension. The key equals ``hash_keys(seed key, pixel, dimension)``."""
-        if self._lanes is None:
-            raise SamplerError(f"{self.plugin_name}: seed() must be called before sampling")
-        pixel_key, first_sample = self._lanes
+        pixel_key, first_sample = self._drawable_lanes()
         dim = self._dim
         self._dim = dim + 1
         return hash_extend(pixel_key, dim), first_sample + self._pass * self._lane_stride
+
+    def _drawable_lanes(self) -> tuple[mi.UInt32, mi.UInt32]:
+        """The lane state, if the lanes' sample indices of this pass exist: seeded,
+        and not wrapped past 2^32 (an ``advance()`` after the last pass, as
+        Mitsuba makes, is fine as long as nothing is drawn there); else raise."""
+        if self._lanes is None:
+            raise SamplerError(f"{self.plugin_name}: seed() must be called before sampling")
+        if self._past_limit:
+            raise SamplerError(self._past_limit)
+        return self._lanes
 
     def _sample_1d(self, key: mi.UInt32, sample: mi.UInt32, active: Mask) -> mi.Float:
         raise NotImplementedError

@@ -214,8 +214,7 @@ class ZSobolSampler(McrtSampler):
 
     def _next_dimension(self) -> tuple[mi.UInt32, mi.UInt32]:
         """Scrambling key and Sobol' index of this dimension per lane."""
-        if self._lanes is None:
-            raise SamplerError(f"{self.plugin_name}: seed() must be called before sampling")
+        self._drawable_lanes()
         dim = self._dim
         self._dim = dim + 1
         index, key = zsobol_dimension(*self._zsobol, dim)

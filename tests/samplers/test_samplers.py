@@ -411,6 +411,27 @@ def test_advance_continues_the_pattern_across_passes(name):
     assert not (set(map(tuple, xy.tolist())) & set(map(tuple, wxy.tolist())))
 
 
+@pytest.mark.parametrize("name", OUR_SAMPLERS)
+def test_a_pass_past_32_bit_sample_indices_is_refused_not_repeated(name):
+    """Sample indices are 32-bit: a pixel positioned at pass 2^32 / N of N samples
+    per pass (a long progressive render driven by advance()/start_pass) drew
+    exactly the samples of pass 0 again, silently. The last pass that fits still
+    draws fresh samples; the next one is refused in one line when drawn (an
+    advance() after a render's last pass, as Mitsuba makes, draws nothing)."""
+    spp = 1024
+    sampler = seeded(name, spp, seed=5)
+    first = np.array(sampler.next_1d())
+    last = (1 << 32) // spp - 1
+    sampler.start_pass(last)
+    assert np.intersect1d(first, np.array(sampler.next_1d())).size <= 4  # as advance's test
+    sampler.advance()  # positioned past the limit: nothing drawn, no error
+    with pytest.raises(SamplerError, match=r"pass 4194304 of 1024 samples per pixel .*"
+                                           r"repeat the pixel's first samples"):
+        sampler.next_1d()
+    sampler.start_pass(0)  # back inside the range: drawable again, the same bits
+    np.testing.assert_array_equal(np.array(sampler.next_1d()), first)
+
+
 @pytest.mark.parametrize("name", CONTRACT)
 def test_multi_pass_render_equals_single_pass(name):
     """Our pass renderer in 4 passes gives the one-pass image (the same samples;
