@@ -689,6 +689,25 @@ def test_sobol_adaptive_batches_are_prefixes_of_one_sequence(edges):
     assert nets >= 5
 
 
+def test_a_progressive_batch_past_32_bit_sample_indices_is_refused(edges):
+    """A `sobol` batch continues each pixel after its samples so far, and those
+    were uploaded as 32-bit indices: a pixel with 2^32 - 8 samples given a batch
+    of 16 was traced with indices wrapped to 0-7, the sequence's first samples
+    again, silently (the pass check only bounded k * m, not what pixels hold)."""
+    from mcrt.render.adaptive.sums import PixelSums
+    from mcrt.render.adaptive.wavefront import Target, trace_wavefront
+
+    sensor = edges.sensors()[0]
+    acc = PixelSums(48 * 36, 4, 3)
+    ids = np.arange(4)
+    acc.traced[ids] = (1 << 32) - 8
+    target = Target(edges, sensor, edges.integrator(), make_sampler("sobol", 16), 16, acc)
+    with pytest.raises(McrtError, match="exceed the 32-bit sample indices"):
+        trace_wavefront(target, ids, 16, 1, 0, [])
+    acc.traced[ids] = (1 << 32) - 32  # the last batch that fits is traced
+    trace_wavefront(target, ids, 16, 1, 0, [])
+
+
 @pytest.mark.parametrize("name", ["jittered", "sobol"])
 def test_wavefronts_split_in_chunks_give_the_same_bits(edges, name):
     """A pass whose pixels are traced in several wavefronts (``max_lanes`` smaller

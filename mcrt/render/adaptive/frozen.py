@@ -122,7 +122,7 @@ def wavefront(target: Target, ids: np.ndarray, m: int, k: int, seed: int) -> Pen
                             scene=scene)
     if entry is None:  # traced the first time
         return None
-    check_passes(k, m)
+    check_passes(k, m, acc.traced[ids] if progressive else None)
     sampler.set_sample_count(m)
     now = _NOW
     now.sampler, now.sensor, now.m, now.spp, now.s = sampler, index, m, spp, acc.s

@@ -66,10 +66,15 @@ def sample_cells(samples: CameraSamples, values: list[Any], s: int) -> tuple[Any
     return finite, sub.y * s + sub.x, inside
 
 
-def check_passes(k: int, m: int) -> None:
-    """Sample indices are 32-bit: pass ``k`` of batch ``m`` must fit."""
+def check_passes(k: int, m: int, traced: np.ndarray | None = None) -> None:
+    """Sample indices are 32-bit: pass ``k`` of batch ``m`` must fit; a progressive
+    sampler's batch continues each pixel after its ``traced`` samples, which
+    must fit too (an index past 2^32 - 1 would wrap and repeat the first samples)."""
     if (k + 1) * m >= 1 << 32:
         raise McrtError("adaptive: too many passes for 32-bit sample indices; raise growth")
+    if traced is not None and traced.size and int(traced.max()) + m >= 1 << 32:
+        raise McrtError(f"adaptive: a pixel's {int(traced.max()) + m} samples exceed the "
+                        f"32-bit sample indices of a progressive sampler; lower max_spp")
 
 
 class _Wavefront:
@@ -109,12 +114,13 @@ def trace_wavefront(target: Target, ids: np.ndarray, m: int, k: int, wave_seed: 
     sampler: Any = target.sampler  # mcrt's have seed_lanes; Mitsuba's take a lane count
     acc = target.acc
     lanes = ids.size * m
-    check_passes(k, m)
+    progressive = target.ours and getattr(sampler, "progressive", False)
+    check_passes(k, m, acc.traced[ids] if progressive else None)
     # Lanes: m consecutive lanes per active pixel, built in the kernel from the ids.
     lane = dr.arange(mi.UInt32, lanes)
     pixel_index = dr.gather(mi.UInt32, to_device(mi.UInt32, ids), lane // m)
     sampler.set_sample_count(m)
-    if target.ours and getattr(sampler, "progressive", False):
+    if progressive:
         # One sequence per pixel (sobol): this batch continues it where the pixel's
         # previous batches stopped, so its samples so far are always a prefix.
         start = dr.gather(mi.UInt32, to_device(mi.UInt32, acc.traced[ids]), lane // m)
