@@ -64,3 +64,38 @@ def test_relative_links_and_images_exist(page):
     for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", path.read_text()):
         if "://" not in target:
             assert (path.parent / target).exists(), f"{page}: {target}"
+
+
+# The study configurations the docs show, with the folder each says it is saved in (the
+# scene paths in them are relative to that folder).
+STUDY_EXAMPLES = [("README.md", ROOT), ("docs/references-and-studies.md", ROOT / "configs")]
+
+
+@pytest.mark.parametrize("page, folder", STUDY_EXAMPLES)
+def test_study_configurations_shown_are_valid(page, folder):
+    """What `mcrt compare CONFIG --check` does on each study TOML a page shows, saved where
+    the page says: a newcomer who copies it gets a study that runs (the reference page's
+    once named a baseline that was not one of its samplers)."""
+    import tomllib
+
+    from mcrt.analysis.study.checks import check_config
+    from mcrt.analysis.study.config import parse_config
+
+    blocks = re.findall(r"^```toml\n(.*?)^```", (ROOT / page).read_text(), re.S | re.M)
+    studies = [tomllib.loads(b) for b in blocks if "[[scenes]]" in b]
+    assert studies, page
+    for data in studies:
+        check_config(parse_config(data, base_dir=folder))
+
+
+def test_every_study_key_is_documented_in_full_toml():
+    """docs/references-and-studies.md says every key of a study configuration is documented
+    in configs/full.toml's header."""
+    from mcrt.analysis.study import config
+
+    documented = set()
+    for line in (ROOT / "configs/full.toml").read_text().splitlines():
+        if re.match(r"#   \S", line):  # "#   name, description      shown in the report"
+            keys = line[4:].split("  ")[0]
+            documented |= {key.strip("[] ") for key in keys.split(",")}
+    assert documented >= config._TOP_KEYS, config._TOP_KEYS - documented
