@@ -99,3 +99,15 @@ def test_every_study_key_is_documented_in_full_toml():
             keys = line[4:].split("  ")[0]
             documented |= {key.strip("[] ") for key in keys.split(",")}
     assert documented >= config._TOP_KEYS, config._TOP_KEYS - documented
+
+
+@pytest.mark.parametrize("page", ["README.md", *sorted(p.name for p in DOCS.glob("*.md"))])
+def test_repository_paths_named_exist(page):
+    """A path of this repository a page names in passing (`mcrt/core/stats.py`,
+    `benchmarks/...py`, `configs/quick.toml`) exists; placeholders in capitals (NAME, KEY) and
+    paths under another root (`~/.cache/mcrt/...`, `/home/me/mcrt/...`) are not such paths."""
+    path = ROOT / page if page == "README.md" else DOCS / page
+    roots = "benchmarks|scripts|tests|mcrt|configs|scenes|docs"
+    for named in re.findall(rf"(?<![\w/.~-])(?:{roots})/[\w./-]*\w", path.read_text()):
+        if not re.search(r"(?<![a-z])[A-Z]{3,}(?![a-z])", named):
+            assert (ROOT / named).exists(), f"{page}: {named}"
