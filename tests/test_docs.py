@@ -111,3 +111,18 @@ def test_repository_paths_named_exist(page):
     for named in re.findall(rf"(?<![\w/.~-])(?:{roots})/[\w./-]*\w", path.read_text()):
         if not re.search(r"(?<![a-z])[A-Z]{3,}(?![a-z])", named):
             assert (ROOT / named).exists(), f"{page}: {named}"
+
+
+def test_plan_printed_in_the_docs_is_what_mcrt_plan_prints(monkeypatch, capsys):
+    """The `$ mcrt plan SCENE` transcripts of the docs are the command's output, word for word
+    (the plan is deterministic and takes well under a second)."""
+    from mcrt.cli import main
+
+    monkeypatch.chdir(ROOT)
+    shown = [(page.name, command, output) for page in sorted(DOCS.glob("*.md"))
+             for command, output in re.findall(r"^\$ mcrt (plan [^\n]*)\n(.*?)^```",
+                                               page.read_text(), re.S | re.M)]
+    assert shown
+    for page, command, output in shown:
+        assert main(["-q", *command.split()]) == 0
+        assert capsys.readouterr().out == output, f"{page}: mcrt {command}"
