@@ -37,10 +37,10 @@ def add_parser(commands) -> None:
     p = commands.add_parser(
         "reference", help=SUMMARIES["reference"],
         description="Render a reference of SCENE.xml in passes of independent seeds, merging "
-                    "exact float64 per-pixel statistics, and write OUT.exr with layers rgb "
-                    "(mean), variance (per sample), stderr (of the mean), count (samples per "
-                    "pixel) and nonfinite (if any). Results are cached by scene content and "
-                    "parameters ($MCRT_CACHE_DIR, else $XDG_CACHE_HOME/mcrt, else "
+                    "exact float64 per-pixel statistics, and write OUT.exr: the mean as its R, G, "
+                    "B channels and layers variance (per sample), stderr (of the mean), count "
+                    "(samples per pixel) and nonfinite (if any). Results are cached by scene "
+                    "content and parameters ($MCRT_CACHE_DIR, else $XDG_CACHE_HOME/mcrt, else "
                     "~/.cache/mcrt); an interrupted reference resumes from its last pass.",
         epilog=examples("mcrt reference scenes/cornell_box.xml --spp 4096",
                         "mcrt reference scenes/checkerboard.xml --sampler jittered -o out/refs/",
