@@ -173,13 +173,20 @@ class Subject:
                               seed=seed).astype(np.float64)
 
 
-def draw(sampler: mi.Sampler, calls: tuple[str, ...] = CALLS) -> list[np.ndarray]:
-    """Values of ``calls`` ("1d"/"2d") as float64 ``(lanes, 1 or 2)`` arrays; a
-    call that does not return one value per lane is the sampler's error, said so."""
-    lanes = sampler.wavefront_size()
+def draw(sampler: mi.Sampler, lanes: int, calls: tuple[str, ...] = CALLS) -> list[np.ndarray]:
+    """Values of ``calls`` ("1d"/"2d") on ``lanes`` lanes (those it was seeded
+    with) as float64 ``(lanes, 1 or 2)`` arrays; a call that does not return one
+    value per lane is the sampler's error, said so. (Not ``wavefront_size()``: a
+    plain ``mi.Sampler`` subclass whose ``seed`` does not call the base's, as
+    renders allow, reports 0.)"""
     return [lane_array(sampler.next_2d() if call == "2d" else sampler.next_1d(), lanes, call,
                        f"call {i + 1} (next_{call}) ", np.float64)
             for i, call in enumerate(calls)]
+
+
+def lanes(sampler: mi.Sampler, pixels: int) -> int:
+    """Lanes of a sampler :meth:`Subject.seeded` seeded for ``pixels`` pixels."""
+    return pixels * sampler.sample_count()
 
 
 # --------------------------------------------------------------------------- contract
@@ -196,13 +203,16 @@ def _same(name: str, a: list[np.ndarray], b: list[np.ndarray], what: str) -> Che
 
 def check_determinism(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     n, pixels = subject.count(budget.contract_spp), budget.contract_pixels
-    return _same("determinism", draw(subject.seeded(n, pixels, seed)),
-                 draw(subject.seeded(n, pixels, seed)), f"two fresh instances, seed {seed}")
+    a, b = (subject.seeded(n, pixels, seed) for _ in range(2))
+    return _same("determinism", draw(a, lanes(a, pixels)), draw(b, lanes(b, pixels)),
+                 f"two fresh instances, seed {seed}")
 
 
 def check_range(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     n = subject.count(budget.contract_spp)
-    values = draw(subject.seeded(n, 16 * budget.contract_pixels, seed))
+    pixels = 16 * budget.contract_pixels
+    sampler = subject.seeded(n, pixels, seed)
+    values = draw(sampler, lanes(sampler, pixels))
     bad = [f"call {i + 1} ({CALLS[i]}): {np.count_nonzero(out)} values outside [0, 1), e.g. "
            f"{v[out][0]!r}" for i, v in enumerate(values)
            if (out := ~(np.isfinite(v) & (v >= 0.0) & (v < 1.0))).any()]
@@ -215,29 +225,33 @@ def check_range(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
 
 def check_clone(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     sampler = subject.seeded(subject.count(budget.contract_spp), budget.contract_pixels, seed)
-    draw(sampler, CALLS[:3])
+    width = lanes(sampler, budget.contract_pixels)
+    draw(sampler, width, CALLS[:3])
     sampler.advance()
-    draw(sampler, CALLS[:1])
+    draw(sampler, width, CALLS[:1])
     twin = sampler.clone()
-    return _same("clone", draw(sampler), draw(twin), "a clone after 3 calls, advance(), 1 call")
+    return _same("clone", draw(sampler, width), draw(twin, width),
+                 "a clone after 3 calls, advance(), 1 call")
 
 
 def check_fork(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     n, pixels = subject.count(budget.contract_spp), budget.contract_pixels
     sampler = subject.seeded(n, pixels, seed)
-    draw(sampler, CALLS[:2])  # mid-stream
+    draw(sampler, lanes(sampler, pixels), CALLS[:2])  # mid-stream
     fresh = sampler.fork()
     other = (seed + 1) % (1 << 32)
     fresh.set_samples_per_wavefront(fresh.sample_count())
     fresh.seed(other, pixels * fresh.sample_count())  # type: ignore[arg-type]
-    return _same("fork", draw(fresh), draw(subject.seeded(n, pixels, other)),
+    again = subject.seeded(n, pixels, other)
+    return _same("fork", draw(fresh, lanes(fresh, pixels)), draw(again, lanes(again, pixels)),
                  f"a fork reseeded with {other} vs a fresh instance")
 
 
 def check_seeding(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     n, pixels = subject.count(budget.contract_spp), budget.contract_pixels
     other = (seed + 1) % (1 << 32)
-    a, b = (draw(subject.seeded(n, pixels, s)) for s in (seed, other))
+    a, b = (draw(s, lanes(s, pixels)) for s in (subject.seeded(n, pixels, x)
+                                                 for x in (seed, other)))
     kept = [float(np.mean(np.all(x == y, axis=1))) for x, y in zip(a, b, strict=True)]
     stuck = [f"call {i + 1} ({CALLS[i]}) keeps {k:.0%} of its values"
              for i, k in enumerate(kept) if k > MAX_KEPT_SHARE]

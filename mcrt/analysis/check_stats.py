@@ -49,7 +49,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import patterns
-from .check import Budget, Check, CheckResult, Subject, Unsupported, draw
+from .check import Budget, Check, CheckResult, Subject, Unsupported, draw, lanes
 from .integrate import INTEGRANDS, Convergence, Integrand, run_convergence
 from .significance import holm, t_quantile, two_sided_p
 
@@ -130,7 +130,7 @@ def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> Check
     sampler = subject.seeded(n, pixels, seed)
     sets, n = _table_sets(sampler), sampler.sample_count()
     first, second, third, last = (c.reshape(pixels, n, -1)
-                                  for c in draw(sampler, UNBIASED_CALLS))
+                                  for c in draw(sampler, lanes(sampler, pixels), UNBIASED_CALLS))
     u = second[..., 0]
     tests = {name: _t_test(f(u).mean(axis=1), exact, sets) for name, f, exact in ONE_D_TERMS}
     film: dict[str, tuple[float, float, float]] = {}
