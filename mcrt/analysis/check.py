@@ -8,10 +8,13 @@ are fixed: a result is a function of (sampler, seed, budget) and never flakes.
 
 Contract, through Mitsuba's interface as a render drives it (wavefront of
 ``pixels * N`` lanes, the calls :data:`CALLS`): **determinism** (two fresh
-instances, same seed: same bits), **range** (finite, in [0, 1)), **clone** (made
-mid-stream after ``advance()``: the same values), **fork** (reseeded: what a
-fresh instance draws), **seeding** (another seed changes every call: at most
-half of the lanes keep a value; a permuted grid keeps ~1/N, a seed-blind call all).
+instances, same seed: same bits), **range** (finite, in [0, 1), on
+``unbiased_lanes`` lanes: 2^20, quick 2^16, nine coordinates each, so a sampler
+that leaves [0, 1) once in 2^20 values is found with probability 1 - e^-9, quick
+once in 2^16; with 4096 lanes it passed), **clone** (made mid-stream after
+``advance()``: the same values), **fork** (reseeded: what a fresh instance
+draws), **seeding** (another seed changes every call: at most half of the lanes
+keep a value; a permuted grid keeps ~1/N, a seed-blind call all).
 
 Sample counts. A sampler may serve only some counts: its ``sample_counts()``
 (``pointset``: the set sizes of its file) lists them; without the method, or
@@ -70,7 +73,7 @@ class Budget:
     """Work per check; pixels are the independent trials. Counts are those a
     check wants (see the module doc for samplers that serve only some)."""
 
-    contract_pixels: int = 16    # at contract_spp; range: 16x the pixels
+    contract_pixels: int = 16    # at contract_spp; range: unbiased_lanes
     contract_spp: int = 16
     claim_pixels: int = 64       # point sets per count and dimension
     unbiased_spp: int = 16
@@ -208,14 +211,22 @@ def check_determinism(subject: Subject, budget: Budget, seed: int = 0) -> CheckR
                  f"two fresh instances, seed {seed}")
 
 
+def outside(values: np.ndarray) -> str:
+    """How many ``values`` are not finite or lie outside [0, 1), with one of
+    them; "" when none does."""
+    out = ~(np.isfinite(values) & (values >= 0.0) & (values < 1.0))
+    count = np.count_nonzero(out)
+    return (f"{count} value{'s' if count > 1 else ''} outside [0, 1), e.g. "
+            f"{float(values[out][0])}" if count else "")
+
+
 def check_range(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
     n = subject.count(budget.contract_spp)
-    pixels = 16 * budget.contract_pixels
+    pixels = max(16 * budget.contract_pixels, budget.unbiased_lanes // n)
     sampler = subject.seeded(n, pixels, seed)
     values = draw(sampler, lanes(sampler, pixels))
-    bad = [f"call {i + 1} ({CALLS[i]}): {np.count_nonzero(out)} values outside [0, 1), e.g. "
-           f"{v[out][0]!r}" for i, v in enumerate(values)
-           if (out := ~(np.isfinite(v) & (v >= 0.0) & (v < 1.0))).any()]
+    bad = [f"call {i + 1} ({CALLS[i]}): {outside(v)}" for i, v in enumerate(values)
+           if outside(v)]
     low, high = (float(f([f(v) for v in values])) for f in (np.nanmin, np.nanmax))
     detail = "; ".join(bad) or f"{sum(v.size for v in values)} values: finite, in [0, 1)"
     top = f"1 - {1 - high:.2g}" if high < 1 else f"{high:.3g}"  # (a value >= 1 fails)

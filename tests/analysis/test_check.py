@@ -270,11 +270,11 @@ def test_user_errors_exit_2(capsys, argv, message):
 def test_ldsampler_fails_on_products_across_dimensions():
     """Mitsuba's ldsampler gives every dimension of a pixel the same points,
     reordered (docs/ldsampler-bias.md): each dimension alone is unbiased, the
-    product of two is not (+4.5% on disk x disk, t ~ 10, at the full budget)."""
+    product of two is not (+4.5% on disk call 1 x 4, t ~ 10, at the full budget)."""
     result = check_unbiasedness(Subject("ldsampler"), FULL)
     assert not result.passed
     t = {name: v["t"] for name, v in result.values.items()}
-    assert t["disk x disk"] > 6 and t["gaussian x gaussian"] > 6
+    assert t["disk call 1 x 4"] > 6 and t["gaussian call 1 x 4"] > 6
     assert all(abs(value) < 3 for name, value in t.items() if " x " not in name)
 
 
@@ -398,8 +398,8 @@ def test_a_shared_table_products_and_degrees_of_freedom_are_calibrated(register,
         register(f"table_{seed}_test", points=lambda c, n, rng: rng.random((c, n, 2)),
                  sets=16, seed=seed)
         result = check_unbiasedness(Subject(f"table_{seed}_test"), budget)
-        rows.append([result.values[k]["t"] for k in ("disk", "disk x disk", "gaussian",
-                                                    "gaussian x gaussian")])
+        rows.append([result.values[k]["t"] for k in ("disk", "disk call 1 x 4", "gaussian",
+                                                    "gaussian call 1 x 4")])
     t = np.array(rows)
     for single, product in ((0, 1), (2, 3)):
         slope = np.sum(t[:, single] * t[:, product]) / np.sum(t[:, single] ** 2)

@@ -2,8 +2,8 @@
 
 A plain ``mi.Sampler`` subclass (not a :class:`McrtSampler`) of hashed white
 noise, keyed by (seed, lane, dimension), with one mistake a researcher might
-make switched on by ``bug``: dimension 2 repeats dimension 0, values 1.0 or NaN
-once in 2^20, the same points in every pixel. Its ``seed`` does not call the
+make switched on by ``bug``: dimension 2 repeats dimension 0, a value of 1.0
+once in 2^20 or NaN once in 2^12, the same points in every pixel. Its ``seed`` does not call the
 base class's (renders work without it: ``test_python_api``), so Mitsuba's
 ``wavefront_size()`` stays 0. Seeds are fixed, the budget is the quick one.
 """
@@ -39,7 +39,7 @@ def _plain_class(bug: str = "") -> type:
             dim = dr.select(self.dim == 2, 0, self.dim) if bug == "dim2eq0" else self.dim
             lane = self.lane % self.spp if bug == "same_pixel" else self.lane
             h = hash_keys(self.key, lane, dim * 2 + salt)
-            odd = (h & 0xFFFFF) == 7  # once in 2^20
+            odd = (h & (0xFFF if bug == "nan" else 0xFFFFF)) == 7  # once in 2^12 / 2^20
             return dr.select(odd, {"nan": dr.nan, "one": 1.0}.get(bug, 0.5), unit_float(h)) \
                 if bug in ("nan", "one") else unit_float(h)
 
@@ -98,3 +98,54 @@ def test_a_plain_sampler_whose_seed_skips_the_base_passes_the_contract(plain):
     for check in (*CONTRACT, check_unbiasedness):
         result = check(subject, QUICK, 0)
         assert result.passed, (result.name, result.detail)
+
+
+def test_a_dimension_that_repeats_an_earlier_one_fails_unbiasedness(plain):
+    """Dimension 2 (call 3) equal to dimension 0 (the film): a path's camera and
+    light samples would be one point. Only calls 1 x 4 were multiplied and all 9
+    checks held. With call 3 = call 1, f(call 1) f(call 3) = f^2, whose mean is
+    E[f^2] = I for the disk's indicator, not I^2: +99% (1 / 0.503 - 1); the quick
+    budget's se of that term is ~3% (sd of a 16-point mean of f^2 / I^2 over 1024
+    px), so t ~ 30 or more, far past Holm's limit of ~4."""
+    result = check_unbiasedness(Subject(plain("dim2eq0")), QUICK)
+    assert not result.passed
+    disk = result.values["disk call 1 x 3"]
+    assert 0.9 < disk["relative_bias"] < 1.1 and disk["t"] > 20
+    assert "only products of two calls: the dimensions are not independent" in result.detail
+    singles = [v["t"] for k, v in result.values.items() if " x " not in k]
+    assert max(abs(t) for t in singles) < 4  # each call alone is uniform
+
+
+def test_a_value_of_one_once_in_a_million_fails_the_range(plain):
+    """The range row drew 4096 lanes (36864 values) and passed this sampler; a
+    render of 512 x 512 px x 64 spp at ~25 values a path meets ~400 such values.
+    On 2^20 lanes of 9 coordinates ~9 are expected (Poisson: none with
+    probability e^-9 = 1e-4; seed 0 finds 6)."""
+    from mcrt.analysis.check import FULL, check_range
+
+    result = check_range(Subject(plain("one")), FULL)
+    assert not result.passed and "outside [0, 1), e.g. 1.0" in result.detail
+
+
+def test_nan_values_are_named_by_the_unbiasedness_row(plain):
+    """A NaN made every mean NaN and the row said "bias +nan% (t = -inf)"; it
+    now counts the values outside [0, 1) (16384 lanes x 7 coordinates / 2^12:
+    ~28 expected, none with probability e^-28)."""
+    result = check_unbiasedness(Subject(plain("nan")), QUICK)
+    assert not result.passed and result.figure == "not tested"
+    assert "values outside [0, 1), e.g. nan" in result.detail and "bias" not in result.detail
+
+
+def test_mitsubas_stratified_fails_on_consecutive_dimensions():
+    """Mitsuba's ``stratified`` permutes each dimension's strata with Kensler's
+    permutation seeded by the dimension index: consecutive dimensions (calls 3
+    and 4) are paired, -3.6% on the gaussian product (t ~ -14 at seeds 0 and 1;
+    directly, without mcrt, -3.4% on dimensions 0 x 1, 1 x 2, 2 x 3, 3 x 4, t ~ -14,
+    and 0 x 2, 0 x 4 within 1%). Only calls 1 x 4 were multiplied, and it passed.
+    Bound t < -6: eight standard deviations from the measured value."""
+    from mcrt.analysis.check import FULL
+
+    result = check_unbiasedness(Subject("stratified"), FULL)
+    assert not result.passed
+    assert result.values["gaussian call 3 x 4"]["t"] < -6
+    assert all(abs(v["t"]) < 4 for k, v in result.values.items() if " x " not in k)
