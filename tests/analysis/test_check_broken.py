@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 import pytest
 
 import mcrt
@@ -149,3 +150,26 @@ def test_mitsubas_stratified_fails_on_consecutive_dimensions():
     assert not result.passed
     assert result.values["gaussian call 3 x 4"]["t"] < -6
     assert all(abs(v["t"]) < 4 for k, v in result.values.items() if " x " not in k)
+
+
+def _global_rng_sets(count, n, rng):
+    return np.random.random((count, n, 2))  # numpy's global RNG, not rng
+
+
+def test_a_generator_on_numpys_global_rng_is_refused(capsys, cache):
+    """Its first table was cached (keyed by the code) and every check held,
+    while a cleared cache or a Dask worker made other points. Two calls for one
+    set with equal rngs now must agree (they differ with probability 1 - 2^-64)."""
+    from tests.conftest import run_cli
+
+    mcrt.register_sampler("global_rng_test", points=_global_rng_sets)
+    try:
+        code, _, err = run_cli(capsys, "check", "global_rng_test", "--quick", "-q")
+        assert code == 2 and "two calls with the same rng returned different points" in err
+        assert len(err.strip().splitlines()) == 1
+        mcrt.register_sampler("seeded_rng_test", points=lambda c, n, rng: rng.random((c, n, 2)))
+        Subject("seeded_rng_test").make(16)  # a generator that uses rng is served
+    finally:
+        registry.unregister("global_rng_test")
+        if "seeded_rng_test" in registry.names():
+            registry.unregister("seeded_rng_test")
