@@ -17,9 +17,10 @@ Traced as before (:func:`.wavefront.trace_wavefront`), the reason said once at
 debug level on ``mcrt.render`` (:func:`mcrt.core.replay.note`): ``MCRT_REPLAY=0``,
 Mitsuba's samplers (seeded per wavefront with sizes known on the host), an
 ``on_samples`` callback, mcrt's Python integrators, a sensor that is not one of
-the scene's, a user's sampler holding numpy arrays and no ``frozen_inputs()``
-(:mod:`mcrt.core.traced_state`), and whatever fails to record (remembered for
-the process). The key holds the user's sampler's host values as the film's does.
+the scene's, Mitsuba's ``batch`` sensor (:data:`.wavefront.STATEFUL_SENSORS`: a
+recording aborted the process), a user's sampler holding numpy arrays and no
+``frozen_inputs()`` (:mod:`mcrt.core.traced_state`), and whatever fails to record
+(remembered for the process). The key holds the user's sampler's host values as the film's does.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from ...core.traced_state import sampler_key
 from ...core.traced_state import why_not as sampler_why_not
 from ...core.upload import to_device
 from .sums import Pending, PixelSums, reduce_wavefront
-from .wavefront import Target, check_passes, rgb_alpha, sample_cells
+from .wavefront import STATEFUL_SENSORS, Target, check_passes, rgb_alpha, sample_cells
 
 #: Recordings kept per process (least recently used dropped first): one per
 #: (scene, sampler, batch size, ...); each keeps its scene and integrator alive.
@@ -99,6 +100,9 @@ def why_not(target: Target) -> str | None:
         return f"mcrt's {type(target.integrator).__name__} works on the host"
     if not any(x is target.sensor for x in target.scene.sensors()):
         return "the sensor is not one of the scene's"
+    if target.sensor.class_name() in STATEFUL_SENSORS:
+        # (a recording would release the last wavefront's ids, see STATEFUL_SENSORS)
+        return f"Mitsuba's {target.sensor.class_name()} keeps its last call's positions"
     return None
 
 

@@ -22,6 +22,18 @@ from ...errors import McrtError
 from ...samplers.base import is_mcrt_sampler
 from .sums import Pending, PixelSums
 
+#: Sensors that keep a variable of their last ``sample_ray_differential`` call
+#: (Mitsuba 3.9's ``batch``: its sub-sensor indices, an expression of the
+#: positions, so of a wavefront's pixel ids, device memory). Released inside a
+#: later recording of a frozen function (the next call of the sensor there), that
+#: memory is freed through a host callback, which Dr.Jit cannot record: it
+#: aborted the process (``terminate called ... RecordThreadState::enqueue_host_func():
+#: this function cannot be recorded!``), uncatchable, in the adaptive render's
+#: own replay (:mod:`.frozen` traces their wavefronts) and in a film render's
+#: recorded passes after it. :func:`trace_wavefront` therefore calls such a sensor
+#: once more on constants, which releases it outside any recording.
+STATEFUL_SENSORS = ("BatchSensor",)
+
 
 @dataclass(frozen=True)
 class Target:
@@ -134,7 +146,17 @@ def trace_wavefront(target: Target, ids: np.ndarray, m: int, k: int, wave_seed: 
     wavefront = _Wavefront(acc, staged, ids, target.on_samples, k)
     trace_pass(target.scene, target.sensor, target.integrator, sampler,
                pixel_of_index(target.film, pixel_index), target.first, wavefront, m, rgb_alpha)
+    release_sensor_state(target.sensor)
     return wavefront.bad
 
 
-__all__ = ["Target", "check_passes", "rgb_alpha", "sample_cells", "trace_wavefront"]
+def release_sensor_state(sensor: mi.Sensor) -> None:
+    """Let a sensor of :data:`STATEFUL_SENSORS` drop the variables of its last
+    call: one call on constants (no device memory) replaces them."""
+    if sensor.class_name() in STATEFUL_SENSORS:
+        zero: Any = mi.Float(0.0)  # (Mitsuba's stubs type it as Dr.Jit's Float)
+        sensor.sample_ray_differential(zero, zero, mi.Point2f(0.5), mi.Point2f(0.5))
+
+
+__all__ = ["STATEFUL_SENSORS", "Target", "check_passes", "release_sensor_state", "rgb_alpha",
+           "sample_cells", "trace_wavefront"]
