@@ -380,6 +380,34 @@ def test_min_and_max_spp_are_respected(edges):
     assert sum(lanes) == result.samples == sum(p.samples for p in result.passes)
 
 
+def test_sample_totals_count_a_sampled_border(edges):
+    """A film that samples its border (gaussian, radius 2: 2 more pixels on each
+    side) traces the border pixels too; the image and the `spp` layer cover the
+    crop window only, but the render's sample total (the EXR header's `samples`,
+    the samples per second) is what the passes traced, as a film render's is. It
+    counted the crop's samples alone: 2/3 of those traced at 24 x 16."""
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "direct"},
+        "light": {"type": "sphere", "radius": 0.3, "center": [1, 1, 1],
+                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 20}}},
+        "ball": {"type": "sphere", "radius": 0.5, "bsdf": {"type": "diffuse"}},
+        "sensor": {"type": "perspective",
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0],
+                                                              up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 24, "height": 16,
+                            "sample_border": True, "rfilter": {"type": "gaussian"}}}})
+    lanes: list[int] = []
+    result = render_adaptive(scene, make_sampler("jittered", 16),
+                             AdaptiveSettings(threshold=0.05, max_spp=128), seed=1,
+                             on_samples=lambda k, ids, pos, rgb: lanes.append(ids.size))
+    assert result.spp.shape == result.image.shape[:2] == (16, 24)
+    assert result.passes[0].samples == 28 * 20 * 16  # the border's pixels too
+    traced = sum(p.samples for p in result.passes)
+    assert sum(lanes) == traced == result.samples == result.summary()["samples"]
+    assert result.samples > result.spp.sum()
+    assert result.summary()["mean_spp"] == round(result.spp.mean(), 3)
+
+
 def test_later_passes_trace_only_active_pixels(edges):
     """Compaction: a pass traces exactly its active pixels' new samples, each
     pixel in one contiguous batch; no later pass traces the whole image."""

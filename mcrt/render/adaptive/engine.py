@@ -302,7 +302,8 @@ def _result(target: Target, settings: AdaptiveSettings, ladder: tuple[int, ...],
     return AdaptiveRender(image=image.astype(np.float32), channels=names, stats=stats,
                           spp=spp, passes=records, seconds=seconds, settings=settings,
                           sampler=_sampler_label(sampler), batch_ladder=ladder,
-                          luminance_stderr=se_y, converged=converged)
+                          luminance_stderr=se_y, converged=converged,
+                          traced_samples=int(acc.traced.sum()))
 
 
 def _develop(film: mi.Film, acc: PixelSums, width: int, height: int,

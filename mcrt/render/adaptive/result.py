@@ -61,6 +61,9 @@ class AdaptiveRender:
     #: Pixels that pass the error test at the end (the others ran out of
     #: budget, or were only refined as neighbours), (H, W) bool.
     converged: np.ndarray
+    #: Samples traced, NaN/Inf included: the passes' samples, a sampled border's
+    #: pixels included (which ``spp`` leaves out, as the image does).
+    traced_samples: int
     #: Makes the checkpoint of the finished render (on demand; given to renders
     #: that save checkpoints).
     state: Callable[[], Checkpoint] | None = field(default=None, repr=False, compare=False)
@@ -74,7 +77,9 @@ class AdaptiveRender:
 
     @property
     def samples(self) -> int:
-        return int(self.spp.sum())
+        """Samples traced (:attr:`traced_samples`): ``spp.sum()`` plus those of a
+        sampled border, as a film render's count them."""
+        return self.traced_samples
 
     @property
     def rgb(self) -> np.ndarray:
@@ -109,7 +114,7 @@ class AdaptiveRender:
     def summary(self) -> dict:
         """Scalars for metadata and reports."""
         return {"adaptive": 1, "passes": len(self.passes), "samples": self.samples,
-                "mean_spp": round(self.samples / self.spp.size, 3),
+                "mean_spp": round(int(self.spp.sum()) / self.spp.size, 3),
                 "min_spp_used": int(self.spp.min()), "max_spp_used": int(self.spp.max()),
                 "nonfinite_samples": int(self.nonfinite.sum()),
                 "render_seconds": round(self.seconds, 6),
