@@ -122,14 +122,17 @@ def run(args: argparse.Namespace) -> int:
     scene_sampler = scene.sensors()[0].sampler()
     name = args.sampler or sampler_name(scene_sampler)
     spp = args.spp or scene_sampler.sample_count()
-    # An adaptive render sets its own batch counts: a note on rounding --spp (its budget)
-    # would be about a sample count it never uses.
-    quiet = quiet_sampler_warnings() if getattr(args, "adaptive", False) else nullcontext()
+    adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
+    # An adaptive render sets its own batch counts, from min_spp up: its sampler is made
+    # at min_spp (a point-set file may hold no larger sets), and a note on rounding --spp
+    # (its budget) would be about a sample count it never uses.
+    quiet = quiet_sampler_warnings() if adaptive_settings is not None else nullcontext()
     with quiet:
-        sampler = make_sampler(name, spp, **sampler_params) if args.sampler else scene_sampler
+        sampler = make_sampler(name, spp if adaptive_settings is None else
+                               adaptive_settings.min_spp, **sampler_params) \
+            if args.sampler else scene_sampler
     stem = output_stem(args.output, f"{Path(args.scene).stem}_{name}")
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
-    adaptive_settings = _adaptive_args.cli_settings(args, scene, planned.plan)
     heat_path = stem.with_name(stem.name + "_spp.png")
     budget = adaptive_settings.max_spp if adaptive_settings is not None else spp
     with _common.removed_if_refused(exr_path.parent):  # a refused render leaves no folder

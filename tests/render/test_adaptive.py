@@ -798,3 +798,19 @@ def test_batch_ladder_is_the_scan_s_and_cheap_for_huge_budgets(name, monkeypatch
     monkeypatch.setattr(lad, "_count_for", lambda s, r: calls.append(r) or real(s, r))
     huge = lad.batch_ladder(sampler, 16, 2 ** 40)
     assert len(calls) < 5000 and list(huge) == sorted(set(huge)) and huge[-1] <= 2 ** 40
+
+
+def test_the_command_line_makes_an_adaptive_sampler_at_min_spp(tmp_path, monkeypatch):
+    """`mcrt render --adaptive` draws batches from min_spp up, so it makes the
+    sampler at min_spp: a point-set file holding only 16-point sets renders (it
+    was made at the scene's 64 spp and refused, and the --spp 16 the error
+    suggested also capped the budget at 16)."""
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(0)
+    np.save("sets16.npy", (rng.random((64, 16, 2)) * 0.99).astype(np.float32))
+    code = main(["-q", "render", str(ROOT / "scenes" / "cornell_box.xml"), "-D", "res=8",
+                 "--adaptive", "--sampler", "pointset", "-P", "filename=sets16.npy",
+                 "--max-spp", "48", "-o", "a"])
+    assert code == 0
+    layers, header = read_exr(Path("a.exr"))
+    assert int(np.max(layers["spp"])) == 48 and str(header["batch_ladder"]).strip("()[], ") == "16"
