@@ -161,8 +161,8 @@ def findings_banners(result: StudyResult) -> list[str]:
     timing = timing_lines(result.timing)
     if timing:
         items = "".join(f"<li>{html.escape(line)}</li>" for line in timing)
-        out.append(f"<div class='partial'><b>Timing was disturbed.</b> Times and "
-                   f"efficiencies of the cells named are doubtful:<ul>{items}</ul></div>")
+        out.append(f"<div class='partial'><b>Timing was doubtful.</b> The cells named "
+                   f"have doubtful times and efficiencies:<ul>{items}</ul></div>")
     return out
 
 

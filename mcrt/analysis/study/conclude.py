@@ -76,23 +76,35 @@ def _ratio(cell: Cell, base: Cell | None) -> dict[str, float]:
 def timing_verdict(cells: Sequence[Cell], environment: dict[str, Any]) -> dict[str, Any]:
     """Whether the study's times can be trusted: the cells whose timing was
     doubtful (``time_problems``), the share of timed renders that started with
-    other processes runnable, and the machine's load before and after."""
+    other processes runnable, and the machine's load before and after.
+
+    ``disturbed``: some cell's timing is doubtful, or the study's renders were
+    loaded. ``competed``: other processes were seen competing (a cell loaded at
+    over :data:`~mcrt.core.timing.LOADED_SHARE` of its renders, or the study's
+    share above it); without it a doubtful cell's times varied on a quiet
+    machine, which timing again on a quiet machine does not cure."""
     doubtful = [{"scene": c["scene"], "sampler": c["sampler"], "spp": c["spp"],
-                 "problems": c["time_problems"]} for c in cells if c["time_problems"]]
+                 "problems": c["time_problems"], "loaded": _loaded(c["time_others"])}
+                for c in cells if c["time_problems"]]
     others = [o for c in cells for o in c["time_others"] if o is not None]
     loaded = sum(1 for o in others if o) / len(others) if others else math.nan
-    disturbed = bool(doubtful) or (bool(others) and loaded > LOADED_SHARE)
+    busy = bool(others) and loaded > LOADED_SHARE
+    disturbed = bool(doubtful) or busy
     start = environment.get("machine", {})
     end = environment.get("machine_end", {})
     return {"protocol": "warm-up per cell, then interleaved rounds in a shuffled order per "
                         "round and sample count; median wall time; intervals by the delta "
                         "method (Student t)",
-            "disturbed": disturbed, "doubtful_cells": doubtful, "loaded_share": loaded,
+            "disturbed": disturbed, "competed": busy or any(d["loaded"] for d in doubtful),
+            "doubtful_cells": doubtful, "loaded_share": loaded,
             "loadavg_start": start.get("loadavg"), "loadavg_end": end.get("loadavg"),
             "cpus_usable": start.get("cpus_usable")}
 
 
-
+def _loaded(others: Sequence[int | None]) -> bool:
+    """Other processes were runnable at over LOADED_SHARE of a cell's timed renders."""
+    known = [o for o in others if o is not None]
+    return bool(known) and sum(1 for o in known if o) > LOADED_SHARE * len(known)
 
 
 # --------------------------------------------------------------------------- in words
@@ -144,25 +156,48 @@ def bias_lines(cells: Sequence[Cell]) -> list[str]:
 
 
 def timing_lines(timing: dict[str, Any], retime: str = "") -> list[str]:
-    """What disturbed the study's timing, naming the cells (empty: it held)."""
+    """What disturbed the study's timing, naming the cells (empty: it held).
+
+    Cells where other processes competed are *disturbed* (time again on a quiet
+    machine); doubtful cells without them are *unsteady*: their renders' times
+    varied by themselves (or by something too brief to be seen), so the advice is
+    more rounds, not a quiet machine (on a quiet 2-core machine a 160x120 render
+    took 8 or 20 ms from one round to the next)."""
     if not timing.get("disturbed"):
         return []
     lines = []
     doubtful = timing.get("doubtful_cells", [])
-    if doubtful:
-        shown = "; ".join(f"{d['scene']}/{d['sampler']}/{d['spp']} spp ({d['problems']})"
-                          for d in doubtful[:8])
-        more = f" and {len(doubtful) - 8} more" if len(doubtful) > 8 else ""
-        lines.append(f"timing was disturbed in {len(doubtful)} cells: {shown}{more}")
+    # (a result written before "loaded" was recorded: its problems name the load)
+    loaded = [d for d in doubtful
+              if d.get("loaded", "other processes running" in d["problems"])]
+    unsteady = [d for d in doubtful if d not in loaded]
+    if loaded:
+        lines.append(f"timing was disturbed by other processes in {len(loaded)} cells: "
+                     f"{_cells_text(loaded)}")
+    if unsteady:
+        lines.append(f"timing was unsteady in {len(unsteady)} cells with no other process "
+                     f"seen competing: {_cells_text(unsteady)}; their renders' times varied "
+                     f"by themselves, which a quiet machine does not cure: more rounds "
+                     f"(time_rounds) narrow their intervals")
     share = timing.get("loaded_share", math.nan)
     if isinstance(share, float) and math.isfinite(share) and share > LOADED_SHARE:
         lines.append(f"other processes were runnable at the start of {100 * share:.0f}% of "
                      f"the timed renders (load average {timing.get('loadavg_start')} -> "
                      f"{timing.get('loadavg_end')} on {timing.get('cpus_usable')} CPUs)")
-    lines.append("ratios pair renders timed in the same round and are the figures to trust; "
-                 + (f"to time again without measuring the errors again: {retime}" if retime
-                    else "time again on a quiet machine (mcrt compare --retime)"))
+    competed = timing.get("competed", bool(loaded) or (isinstance(share, float)
+                                                        and share > LOADED_SHARE))
+    advice = "ratios pair renders timed in the same round and are the figures to trust"
+    if competed:
+        advice += "; " + (f"to time again without measuring the errors again: {retime}"
+                          if retime else "time again on a quiet machine (mcrt compare --retime)")
+    lines.append(advice)
     return lines
+
+
+def _cells_text(cells: Sequence[dict[str, Any]], shown: int = 8) -> str:
+    text = "; ".join(f"{d['scene']}/{d['sampler']}/{d['spp']} spp ({d['problems']})"
+                     for d in cells[:shown])
+    return text + (f" and {len(cells) - shown} more" if len(cells) > shown else "")
 
 
 def ratio_sentence(cell: Cell, baseline: str) -> str:
