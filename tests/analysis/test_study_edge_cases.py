@@ -78,9 +78,25 @@ def test_a_per_sample_cost_lost_in_the_scatter_is_shown_as_a_bound():
     fit = fit_cost(samples, seconds)
     assert fit.per_unit < 0 < fit.per_unit + 1.96 * fit.per_unit_se  # noise, not a cost
     text = cost_text(fit.per_unit, fit.per_unit_se, 1e9)
-    assert text == f"<{1e9 * (fit.per_unit + 1.96 * fit.per_unit_se):.2f}"
+    # (to the decimal of the standard error's first digit: 231 ns, 0.09 ms; a bound up)
+    assert text == f"<{math.ceil(1e9 * (fit.per_unit + 1.96 * fit.per_unit_se)):d}"
     assert cost_text(fit.fixed, fit.fixed_se, 1e3) == f"{1e3 * fit.fixed:.2f}"  # resolved
-    assert cost_text(2e-9, 1e-10, 1e9) == "2.00"
+    assert cost_text(2e-9, 1e-10, 1e9) == "2.0"
     assert cost_text(-1e-9, 1e-10, 1e9) == "-"  # negative and resolved: no cost at all
     assert cost_text(-1e-9, math.nan, 1e9) == "-" and cost_text(1e-9, math.nan, 1e9) == "1.00"
     assert cost_text(math.nan, math.nan, 1e9) == "-"
+
+
+def test_a_cost_is_printed_to_the_precision_of_its_standard_error():
+    """Measured: 8 quiet runs of one study printed the checkerboard's cost per sample
+    as 21.70, 20.40, 30.50, 34.70 ... ns (se 2-7 ns): two decimals of a figure whose
+    first digit was uncertain. A cost now keeps the decimals of its standard error's
+    first significant digit."""
+    from mcrt.analysis.study.conclude import cost_text
+
+    assert cost_text(21.7e-9, 3.4e-9, 1e9) == "22"
+    assert cost_text(272.2e-9, 3.3e-9, 1e9) == "272"
+    assert cost_text(43.13e-9, 0.14e-9, 1e9) == "43.1"
+    assert cost_text(1.474e-3, 0.06e-3, 1e3) == "1.47"
+    assert cost_text(0.5e-9, 1e-9, 1e9) == "<3"  # its 95% interval reaches 0: a bound, up
+    assert cost_text(2e-9, float("nan"), 1e9) == "2.00"  # no se: the given spec
