@@ -98,10 +98,11 @@ def test_mistaken_arguments_are_one_line_errors_naming_the_argument():
     """Each of these failed deep inside (AttributeError "'str' object has no
     attribute 'sensors'", IndexError "list index out of range", a four-line
     nanobind signature of sampler.seed()) or was truncated without a word (spp
-    4.5 rendered 4 samples, a reference's seed 1.5 was seed 1)."""
+    4.5 rendered 4 samples, a reference's seed 1.5 was seed 1, max_lanes=0 was no
+    limit and a negative one a pass of one sample per pixel)."""
     from mcrt.analysis.reference import get_reference
-    from mcrt.core.render import render_film
-    from mcrt.render.adaptive import render_adaptive
+    from mcrt.core.render import render_film, render_stats
+    from mcrt.render.adaptive import AdaptiveSettings, render_adaptive
     from mcrt.render.scene import load_scene
     from mcrt.samplers.points import point_sets
 
@@ -117,6 +118,11 @@ def test_mistaken_arguments_are_one_line_errors_naming_the_argument():
         (ValueError, lambda: render_film(scene, jittered, seed=1.5), ("seed", "1.5")),
         (ValueError, lambda: render_film(scene, jittered, seed=-1), ("seed", "2^32")),
         (ValueError, lambda: render_film(scene, jittered, sensor=1), ("sensor", "1 sensor")),
+        (ValueError, lambda: render_film(scene, jittered, max_lanes=0), ("max_lanes", ">= 1")),
+        (ValueError, lambda: render_film(scene, jittered, max_lanes=-64), ("max_lanes", "-64")),
+        (ValueError, lambda: render_stats(scene, jittered, max_lanes=0), ("max_lanes", ">= 1")),
+        (McrtError, lambda: render_adaptive(scene, None, AdaptiveSettings(max_lanes=0)),
+         ("max_lanes", "positive")),
         (ValueError, lambda: render_adaptive(scene, None, None, seed=2 ** 32), ("seed",)),
         (TypeError, lambda: render_adaptive(scene, None, {"max_spp": 64}),
          ("settings", "AdaptiveSettings(**settings)")),
@@ -137,6 +143,8 @@ def test_mistaken_arguments_are_one_line_errors_naming_the_argument():
         _one_line(error.value, *words)
     # whole numbers of other types are what they say
     assert render_film(scene, jittered, spp=4.0, seed=np.int64(3)).spp == 4
+    assert render_film(scene, jittered, max_lanes=None, seed=3).spp == 4  # None: no limit
+    assert render_film(scene, jittered, max_lanes=64, seed=3).spp == 4
     assert point_sets("jittered", np.int64(2), np.int32(16)).shape == (2, 16, 2)
 
 

@@ -87,6 +87,13 @@ def check_spp(spp: Any, who: str) -> int | None:
     return None if spp is None else whole_number(spp, f"{who}: spp")
 
 
+def check_max_lanes(max_lanes: Any, who: str) -> int | None:
+    """``max_lanes`` as a positive int (None stays None: no limit but memory's).
+    A 0 was taken as no limit (``max_lanes or default``), a negative as a limit
+    of one sample per pixel per pass; both are refused."""
+    return None if max_lanes is None else whole_number(max_lanes, f"{who}: max_lanes")
+
+
 def check_sensor(scene: mi.Scene, sensor: Any, who: str) -> int:
     """``sensor`` as an index of one of ``scene``'s sensors."""
     count = len(scene.sensors())
@@ -97,5 +104,5 @@ def check_sensor(scene: mi.Scene, sensor: Any, who: str) -> int:
                           f"{'s' if count != 1 else ''}") from None
 
 
-__all__ = ["SEED_LIMIT", "check_sampler", "check_scene", "check_seed", "check_sensor",
-           "check_spp", "variant_of"]
+__all__ = ["SEED_LIMIT", "check_max_lanes", "check_sampler", "check_scene", "check_seed",
+           "check_sensor", "check_spp", "variant_of"]

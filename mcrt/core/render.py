@@ -40,7 +40,7 @@ from .engine import (
     supported_film,
 )
 from .executor import Executor, cluster_status
-from .inputs import check_sampler, check_scene, check_seed, check_sensor, check_spp
+from .inputs import check_max_lanes, check_sampler, check_scene, check_seed, check_sensor, check_spp
 from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
 from .pass_replay import PassReplay
@@ -251,9 +251,10 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     Returns the developed film (bit-identical across runs and thread counts),
     the effective sample count (samplers may round it), passes, wall time and
     the per-pixel count of non-finite samples (left out of the image).
-    ``max_lanes`` caps the samples of one pass; ``passes`` forces the number of
-    passes (it must divide the sample count); ``on_pass(index, count)`` runs
-    before each pass is traced (motion-blur sub-frames). ``checkpoints``
+    ``max_lanes`` (a positive int; None: no limit but the memory's) caps the
+    samples of one pass; ``passes`` forces the number of passes (it must divide
+    the sample count); ``on_pass(index, count)`` runs before each pass is traced
+    (motion-blur sub-frames). ``checkpoints``
     (:class:`~mcrt.core.job.Checkpointing`) resumes an interrupted render and
     saves the finished passes while it runs; ``tasks`` (:class:`PassTasks`)
     runs the passes elsewhere.
@@ -264,6 +265,7 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
     """
     sampler, spp, seed, sensor = _arguments("render_film", scene, sampler, spp, seed, sensor)
+    max_lanes = check_max_lanes(max_lanes, "render_film")
     kept = checkpoints or Checkpointing()
     resume, save, save_every = kept.resume, kept.save, kept.every
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
@@ -430,6 +432,7 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     ``on_pass`` as in :func:`render_film`.
     """
     sampler, spp, seed, sensor = _arguments("render_stats", scene, sampler, spp, seed, sensor)
+    max_lanes = check_max_lanes(max_lanes, "render_stats")
     film, sampler, spp = _prepare(scene, sampler, spp, sensor)
     width, height = grid_pixels(film)
     run = PassRun(fitted_shape(width * height, spp, max_lanes, passes, STATS_BYTES_PER_LANE,
