@@ -62,6 +62,9 @@ def cli_settings(args: argparse.Namespace, scene: mi.Scene,
     if plan is not None and plan.on("motion"):
         raise McrtError("--adaptive does not render motion blur (it needs sub-frames of the "
                         "whole image); add --effect motion=off or drop --adaptive")
+    from ..render.adaptive import check_integrator  # (the engine: loaded for --adaptive only)
+
+    check_integrator(integrator.nested if scene_adaptive else integrator)
     base = integrator.settings if scene_adaptive else AdaptiveSettings()
     if SPP_PARAMETER not in given and getattr(args, "spp", None):
         given[SPP_PARAMETER] = args.spp

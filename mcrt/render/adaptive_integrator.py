@@ -98,7 +98,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             lambda name, value: _typed(PARAMETERS_BY_NAME[name], value))
         if getattr(inner, "is_adaptive", False):
             raise McrtError("adaptive: cannot nest an adaptive integrator in another")
-        self.nested = inner
+        self.nested = adaptive.check_integrator(inner)
         self.settings = AdaptiveSettings(**values).check()
         self.last_result: adaptive.AdaptiveRender | None = None
 

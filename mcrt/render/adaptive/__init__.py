@@ -104,7 +104,7 @@ if TYPE_CHECKING:  # imported on first use (below): `mcrt render` without --adap
         image_mean_luminance,
         luminance_error,
     )
-    from .engine import render_adaptive
+    from .engine import check_integrator, render_adaptive
     from .ladder import batch_ladder, budget_batches, pass_batch_size
     from .result import AdaptiveRender, PassRecord, pass_time_fit
 
@@ -112,7 +112,7 @@ if TYPE_CHECKING:  # imported on first use (below): `mcrt render` without --adap
 _LAZY = {
     **dict.fromkeys(["IMAGE_MEAN_QUANTILE", "LUMINANCE", "dilate", "error_ratio",
                      "image_mean_luminance", "luminance_error"], "criterion"),
-    "render_adaptive": "engine",
+    **dict.fromkeys(["check_integrator", "render_adaptive"], "engine"),
     **dict.fromkeys(["batch_ladder", "budget_batches", "pass_batch_size"], "ladder"),
     **dict.fromkeys(["AdaptiveRender", "PassRecord", "pass_time_fit"], "result"),
 }
@@ -140,6 +140,7 @@ __all__ = [
     "batch_ladder",
     "bin_samples",
     "budget_batches",
+    "check_integrator",
     "dilate",
     "error_ratio",
     "image_mean_luminance",

@@ -5,10 +5,11 @@ their sums (:mod:`.sums`), Ctrl-C checkpoints, and the developed result (see
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import drjit as dr
 import mitsuba as mi
@@ -225,6 +226,27 @@ def _check_progress(acc: PixelSums, spent: int) -> None:
         raise McrtError("adaptive: a pass spent no samples; this is a bug")
 
 
+#: Mitsuba 3.9's ``AOVIntegrator.to_string()`` with no nested integrator (the
+#: plugin binds no accessor for them; with one, the list holds its description).
+_NO_NESTED = re.compile(r"\bintegrators = \[\s*\]")
+
+IntegratorT = TypeVar("IntegratorT", bound=mi.Integrator)
+
+
+def check_integrator(integrator: IntegratorT) -> IntegratorT:
+    """``integrator``, refused in one line when adaptive sampling has no image to
+    adapt to: an ``aov`` integrator without a nested image integrator renders its
+    AOVs only, its image is black, and the adaptive renderer keeps no AOVs (it
+    would trace every budget's samples into a black image, with a warning that
+    ``-q`` hides)."""
+    if integrator.class_name() == "AOVIntegrator" and _NO_NESTED.search(str(integrator)):
+        raise McrtError("adaptive: the aov integrator has no nested image integrator, so its "
+                        "image is black and the adaptive renderer (which keeps no AOVs) has "
+                        "nothing to adapt to: nest one (e.g. <integrator type=\"path\"/>) "
+                        "inside the aov, or render without --adaptive")
+    return integrator
+
+
 def _integrator_and_settings(
         scene: mi.Scene, integrator: mi.SamplingIntegrator | None,
         settings: AdaptiveSettings | None) -> tuple[mi.SamplingIntegrator, AdaptiveSettings]:
@@ -237,6 +259,7 @@ def _integrator_and_settings(
         settings = settings or plugin.settings
         integrator = plugin.nested
     settings = (settings or AdaptiveSettings()).check()
+    check_integrator(integrator)
     if integrator.aov_names():
         log.warning("adaptive: the nested integrator's AOVs (%s) are not kept",
                     ", ".join(integrator.aov_names()))
@@ -321,4 +344,4 @@ def _develop(film: mi.Film, acc: PixelSums, width: int, height: int,
     return image[crop], acc.traced.reshape(height, width)[crop], stats, crop
 
 
-__all__ = ["render_adaptive"]
+__all__ = ["check_integrator", "render_adaptive"]
