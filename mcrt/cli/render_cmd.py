@@ -186,8 +186,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"sampler {name}  spp {result.spp}  {width}x{height}  passes {result.passes}  "
           f"{_common.speed(result.seconds, result.samples_per_second)}")
     if result.nonfinite_samples:
-        print(f"non-finite samples: {result.nonfinite_samples} (NaN/Inf, left out of the image; "
-              f"{int((result.nonfinite > 0).sum())} pixels affected)")
+        print(_nonfinite_line(result.nonfinite_samples, result.image_nonfinite))
     import numpy as np  # (loaded by the render already)
 
     overflowed = int(np.count_nonzero(~np.isfinite(result.image).all(axis=-1)))
@@ -321,6 +320,19 @@ def _typed(text: str):
     return text
 
 
+def _nonfinite_line(total: int, image_counts, layer: str = "") -> str:
+    """The console line of a render's NaN/Inf samples: ``total`` counts every one
+    traced (the EXR's ``nonfinite_samples``), ``image_counts`` those per image
+    pixel (the ``nonfinite`` layer); a film with a sampled border traces the
+    border's pixels too, and its share is named, so the numbers add up."""
+    inside = int(image_counts.sum())
+    pixels = int((image_counts > 0).sum())
+    where = (f"{pixels} pixels affected" if inside == total else
+             f"{inside} in {pixels} image pixels, {total - inside} in the film's sampled "
+             f"border around the image")
+    return f"non-finite samples: {total} (NaN/Inf, left out of the image; {where}{layer})"
+
+
 def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -> None:
     """Write the EXR (no timings in it, so equal renders give equal files) and PNG."""
     meta = {**metadata, "spp": result.spp, "passes": result.passes,
@@ -333,7 +345,7 @@ def _write(exr_path: Path, png_path: Path, result: FilmRender, metadata: dict) -
     channels = {name: result.image[..., c] for c, name in enumerate(result.channels)}
     layers = {}
     if result.nonfinite_samples:
-        layers["nonfinite"] = result.nonfinite.astype("float32")
+        layers["nonfinite"] = result.image_nonfinite.astype("float32")  # the image's pixels
     write_all(lambda: write_exr(exr_path, layers, meta, channels=channels),
               lambda: write_png(png_path, result.rgb, text=png_text(metadata)))  # linear sRGB
 
@@ -388,9 +400,9 @@ def _run_adaptive(args, scene, sampler, name: str, settings, metadata: dict,
     print(f"sampler {name}  adaptive  spp mean {spp.mean():.1f} (min {spp.min()}, max "
           f"{spp.max()})  {width}x{height}  passes {len(result.passes)}  "
           f"{_common.speed(result.seconds, rate)}")
-    if result.nonfinite.sum():
-        print(f"non-finite samples: {int(result.nonfinite.sum())} (NaN/Inf, left out; "
-              f"{int((result.nonfinite > 0).sum())} pixels affected, see layer 'nonfinite')")
+    if result.nonfinite_samples:
+        print(_nonfinite_line(result.nonfinite_samples, result.nonfinite,
+                              ", see layer 'nonfinite'"))
     exhausted = 1.0 - float(result.converged.mean())
     if exhausted > EXHAUSTED_SHARE:
         print(f"note: {100 * exhausted:.1f}% of pixels ran out of the budget of "

@@ -74,8 +74,17 @@ class FilmRender:
 
     @property
     def nonfinite_samples(self) -> int:
-        """NaN/Inf samples detected and left out of the image."""
+        """NaN/Inf samples detected and left out of the image (a sampled border's
+        included: :attr:`nonfinite` covers the film's grid)."""
         return int(self.nonfinite.sum())
+
+    @property
+    def image_nonfinite(self) -> np.ndarray:
+        """:attr:`nonfinite` of the image's pixels, (H, W): the grid without a
+        sampled border's ring (the image is the grid's centre)."""
+        h, w = (self.nonfinite.shape[i] - self.image.shape[i] for i in (0, 1))
+        return self.nonfinite[h // 2:self.nonfinite.shape[0] - h + h // 2,
+                              w // 2:self.nonfinite.shape[1] - w + w // 2]
 
     @property
     def samples(self) -> int:

@@ -312,36 +312,39 @@ def _result(target: Target, settings: AdaptiveSettings, ladder: tuple[int, ...],
     width, height = (int(v) for v in film_grid_size(film))
     s, has_alpha = acc.s, mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
     ratio = error_ratio(acc.mean_y, acc.se_y, acc.counts(), settings)
-    image, spp, stats, crop = _develop(film, acc, width, height, s)
+    image, spp, stats, crop, traced_bad = _develop(film, acc, width, height, s)
     seconds = time.perf_counter() - clock
     se_y = acc.se_y.reshape(height, width)[crop]
     converged = (ratio <= 1.0).reshape(height, width)[crop]
-    nonfinite = int(stats.nonfinite.sum())
-    if nonfinite:
+    if traced_bad:  # every traced one, as the passes count them; the pixels: the image's
+        border = traced_bad - int(stats.nonfinite.sum())
         empty = int((stats.count == 0).sum())
-        log.warning("adaptive: %d NaN/Inf samples left out (%d pixels had no finite sample "
-                    "and are 0)", nonfinite, empty)
+        log.warning("adaptive: %d NaN/Inf samples left out (%s%d image pixels had no finite "
+                    "sample and are 0)", traced_bad,
+                    f"{border} in the film's sampled border; " if border else "", empty)
     image, names = in_film_format(film, image, has_alpha)  # luminance or XYZ films too
     return AdaptiveRender(image=image.astype(np.float32), channels=names, stats=stats,
                           spp=spp, passes=records, seconds=seconds, settings=settings,
                           sampler=_sampler_label(sampler), batch_ladder=ladder,
                           luminance_stderr=se_y, converged=converged,
-                          traced_samples=int(acc.traced.sum()))
+                          traced_samples=int(acc.traced.sum()), traced_nonfinite=traced_bad)
 
 
 def _develop(film: mi.Film, acc: PixelSums, width: int, height: int,
-             s: int) -> tuple[np.ndarray, np.ndarray, PixelStats, tuple[slice, slice]]:
-    """Reconstruct the crop window; crop per-pixel arrays to it."""
+             s: int) -> tuple[np.ndarray, np.ndarray, PixelStats, tuple[slice, slice], int]:
+    """Reconstruct the crop window; crop per-pixel arrays to it. The last value is
+    the NaN/Inf samples of the whole grid (a sampled border's included)."""
     image = reconstruct_grid(acc.grid, (height, width), s, acc.channels,
                              subpixel_filter(film.rfilter(), s))
     b = int(film.rfilter().border_size()) if film.sample_border() else 0
     crop = (slice(b, height - b), slice(b, width - b))
     stats = acc.pixel_stats()
-    stats = PixelStats(count=stats.count.reshape(height, width)[crop],
+    cropped = PixelStats(count=stats.count.reshape(height, width)[crop],
                        mean=stats.mean.reshape(height, width, 3)[crop],
                        m2=stats.m2.reshape(height, width, 3)[crop],
                        nonfinite=stats.nonfinite.reshape(height, width)[crop])
-    return image[crop], acc.traced.reshape(height, width)[crop], stats, crop
+    return (image[crop], acc.traced.reshape(height, width)[crop], cropped, crop,
+            int(stats.nonfinite.sum()))
 
 
 __all__ = ["check_integrator", "render_adaptive"]

@@ -64,6 +64,9 @@ class AdaptiveRender:
     #: Samples traced, NaN/Inf included: the passes' samples, a sampled border's
     #: pixels included (which ``spp`` leaves out, as the image does).
     traced_samples: int
+    #: NaN/Inf samples traced (and left out), a sampled border's included, as
+    #: the passes count them; the ``nonfinite`` layer covers the image only.
+    traced_nonfinite: int
     #: Makes the checkpoint of the finished render (on demand; given to renders
     #: that save checkpoints).
     state: Callable[[], Checkpoint] | None = field(default=None, repr=False, compare=False)
@@ -103,7 +106,15 @@ class AdaptiveRender:
 
     @property
     def nonfinite(self) -> np.ndarray:
+        """NaN/Inf samples per image pixel (a sampled border's are left out, as
+        from ``spp``; :attr:`nonfinite_samples` counts them)."""
         return self.stats.nonfinite
+
+    @property
+    def nonfinite_samples(self) -> int:
+        """NaN/Inf samples traced (:attr:`traced_nonfinite`): ``nonfinite.sum()``
+        plus those of a sampled border, as a film render's count them."""
+        return self.traced_nonfinite
 
     def layers(self) -> dict[str, np.ndarray]:
         """Layers for :func:`mcrt.io.write_exr` besides :meth:`film_channels` (it
@@ -116,7 +127,7 @@ class AdaptiveRender:
         return {"adaptive": 1, "passes": len(self.passes), "samples": self.samples,
                 "mean_spp": round(int(self.spp.sum()) / self.spp.size, 3),
                 "min_spp_used": int(self.spp.min()), "max_spp_used": int(self.spp.max()),
-                "nonfinite_samples": int(self.nonfinite.sum()),
+                "nonfinite_samples": self.nonfinite_samples,
                 "render_seconds": round(self.seconds, 6),
                 "batch_ladder": " ".join(map(str, self.batch_ladder)),
                 **{f"adaptive_{k}": v for k, v in asdict(self.settings).items()}}
