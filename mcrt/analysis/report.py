@@ -66,6 +66,7 @@ from .report_tables import (
     table,
 )
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
+from .study.conclude import cpus_line
 from .study.fields import CSV_COLUMNS, DEFINITIONS
 from .study.figures import error_figure, images_figure, summary_figure
 from .viewer import HELP, viewer_assets, viewer_sections
@@ -84,6 +85,13 @@ TIME_NOTE = (
     "at each render's start are recorded too. Ratios to the baseline pair the renders of "
     "one round. Scene loading, sampler construction, copying the image to NumPy and the "
     "metrics are not included; the reference's render time is reported separately.")
+
+
+def time_note(environment: dict[str, Any]) -> str:
+    """The report's note on time: :data:`TIME_NOTE`, and where the study could use
+    fewer CPUs than its machine has, that its absolute times hold for those."""
+    pinned = cpus_line(environment)
+    return f"{TIME_NOTE} Note: {pinned}." if pinned else TIME_NOTE
 
 
 # --------------------------------------------------------------------------- data files
@@ -237,7 +245,7 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
                      "measured by an earlier, interrupted run and taken from its saved state "
                      "(same configuration, scenes and versions); their times were taken then."
                      "</p>")
-    parts.append(f"<p class='note'><b>Time.</b> {html.escape(TIME_NOTE)}</p>")
+    parts.append(f"<p class='note'><b>Time.</b> {html.escape(time_note(env))}</p>")
     parts += [_toc(result), _h2("summary")]
     if "summary" in files:
         parts.append(f"<p><img alt='summary' src='{_png_data(files['summary'])}'></p>")
@@ -372,4 +380,5 @@ def write_report(result: StudyResult, directory: str | os.PathLike) -> dict[str,
 
 __all__ = ["CSV_COLUMNS", "DEFINITIONS", "TIME_NOTE", "cell_header", "cell_rows", "csv_rows",
            "partial_banner", "render_html", "report_files", "results_json", "summary_header",
-           "summary_rows", "write_report", "write_results_csv", "write_results_json"]
+           "summary_rows", "time_note", "write_report", "write_results_csv",
+           "write_results_json"]

@@ -25,6 +25,7 @@ from ..analysis.study import (
 from ..analysis.study.conclude import (
     bias_lines,
     cost_text,
+    cpus_line,
     interval_text,
     ratio_sentence,
     timing_lines,
@@ -172,6 +173,9 @@ def _measure(args: argparse.Namespace, config, state: StudyState, out: Path) -> 
     retime = f"{resume_command(args, out)} --retime"
     for line in timing_lines(result.timing, retime):
         print(f"timing: {line}")
+    pinned = cpus_line(result.environment)
+    if pinned:
+        print(f"timing: {pinned}")
     resumed = (f" ({result.resumed_cells} of {config.cells} cells from the saved state)"
                if result.resumed_cells else "")
     print(f"study took {result.seconds:.1f} s of wall time{resumed}, including kernel "

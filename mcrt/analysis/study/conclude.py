@@ -204,6 +204,22 @@ def timing_lines(timing: dict[str, Any], retime: str = "") -> list[str]:
     return lines
 
 
+def cpus_line(environment: dict[str, Any]) -> str:
+    """The note that a study ran on fewer CPUs than its machine has (empty if
+    not): ``environment["cpus"]`` is the machine's count, ``environment["machine"]
+    ["cpus_usable"]`` the CPUs this process could run on (its CPU affinity: taskset,
+    a container's cpuset). Renders use every usable CPU, so a pinned study's
+    absolute times are slower than the machine's (one of two CPUs: ~70%), while
+    the ratios pair renders taken under the same limit."""
+    usable = (environment.get("machine") or {}).get("cpus_usable")
+    cpus = environment.get("cpus")
+    if not (isinstance(usable, int) and isinstance(cpus, int)) or not 0 < usable < cpus:
+        return ""
+    return (f"only {usable} of the machine's {cpus} CPUs were usable (CPU affinity: taskset, "
+            f"a container's cpuset): the absolute times hold for {usable} "
+            f"CPU{'s' if usable != 1 else ''}, not for the whole machine; ratios are unaffected")
+
+
 def _cells_text(cells: Sequence[dict[str, Any]], shown: int = 8) -> str:
     text = "; ".join(f"{d['scene']}/{d['sampler']}/{d['spp']} spp ({d['problems']})"
                      for d in cells[:shown])
@@ -222,5 +238,5 @@ def ratio_sentence(cell: Cell, baseline: str) -> str:
     if low <= 1.0 <= high:
         text += " (no significant difference)"
     return text
-__all__ = ["BIAS_ALPHA", "bias_lines", "conclude", "cost_text", "interval_text", "ratio_sentence",
-           "timing_lines", "timing_verdict"]
+__all__ = ["BIAS_ALPHA", "bias_lines", "conclude", "cost_text", "cpus_line", "interval_text",
+           "ratio_sentence", "timing_lines", "timing_verdict"]
