@@ -170,10 +170,15 @@ class Subject:
 
     def points(self, pixels: int, spp: int, dimension: int = 0, ndim: int = 2,
                seed: int = 0) -> np.ndarray:
-        """Points of pixels 0..P-1 as rendered, float64 ``(P, N, ndim)``."""
+        """Points of pixels 0..P-1 as rendered, float64 ``(P, N, ndim)``; points
+        outside [0, 1) raise :class:`~.integrate.PointsOutside` (see :func:`run_checks`)."""
+        from .integrate import check_points
+
         with quiet_sampler_warnings():
-            return point_sets(self.make(spp), pixels, spp, dimension=dimension, ndim=ndim,
-                              seed=seed).astype(np.float64)
+            points = point_sets(self.make(spp), pixels, spp, dimension=dimension, ndim=ndim,
+                                seed=seed).astype(np.float64)
+        check_points(self.name, points, "coordinates")
+        return points
 
 
 def draw(sampler: mi.Sampler, lanes: int, calls: tuple[str, ...] = CALLS) -> list[np.ndarray]:
@@ -293,7 +298,18 @@ def run_checks(name: str, params: dict[str, Any] | None = None, quick: bool = Fa
     doc). User errors (unknown name, parameters refused, a count the sampler
     does not serve) raise SamplerError. A check the sampler cannot run at its
     counts is skipped; an exception inside one (the sampler crashed) fails it.
-    ``progress(row)`` follows each check."""
+    ``progress(row)`` follows each check.
+
+    A check whose points include values outside [0, 1) (NaN, or a 1.0 that a
+    float32 rounding made) fails as "not tested", saying so in one line: the
+    range row has found the defect, and measuring on the valid points alone is
+    not sound: dropping points changes the count N the MSE rate, discrepancy and
+    spectrum are normalised by and the claims count cells with, and it drops them
+    selectively (a 1.0 is a point rounded at the square's edge), so what is left is
+    not the sampler's point set and a pass would vouch for a sampler that was not
+    measured."""
+    from .integrate import PointsOutside
+
     subject, budget = Subject(name, params), budget_for(quick, spp)
     if spp is not None and subject.served is not None and spp not in subject.served:
         raise SamplerError(f"{subject.name} serves {', '.join(map(str, subject.served))} "
@@ -308,6 +324,9 @@ def run_checks(name: str, params: dict[str, Any] | None = None, quick: bool = Fa
             result = fn(subject, budget, seed)
         except Unsupported as error:
             result = CheckResult(row, True, "n/a", f"skipped: {error}", skipped=True)
+        except PointsOutside as error:
+            result = CheckResult(row, False, "not tested", f"cannot be measured: {error.where} "
+                                 f"(see range)")
         except Exception as error:  # the sampler failed while drawing
             raise_if_interrupted(error)
             result = CheckResult(row, False, "error", f"{type(error).__name__}: {error}")

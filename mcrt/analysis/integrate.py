@@ -291,16 +291,25 @@ def effective_count(sampler: str, n: int, **params) -> int:
         return mi.load_dict({"type": sampler, "sample_count": int(n), **params}).sample_count()
 
 
-def check_points(sampler: str, points: np.ndarray) -> None:
-    """Refuse film points that are not finite or not in [0, 1) (a user's sampler
-    breaking the contract): the integrands would be evaluated off the unit square,
-    or on NaN, and the MSE would be wrong or NaN without saying why."""
-    bad = ~(np.isfinite(points) & (points >= 0.0) & (points < 1.0))
-    if bad.any():
-        example = float(points[bad][0])
-        raise SamplerError(f"{sampler}: {np.count_nonzero(bad)} of {points.size} film coordinates "
-                           f"at N = {points.shape[1]} are outside [0, 1), e.g. {example!r} "
-                           f"(mcrt check {sampler} tests the sampler contract)")
+class PointsOutside(SamplerError):
+    """A sampler's points (``(P, N, d)``) that are not finite or not in [0, 1)."""
+
+    def __init__(self, sampler: str, points: np.ndarray, what: str = "film coordinates"):
+        bad = ~(np.isfinite(points) & (points >= 0.0) & (points < 1.0))
+        #: The points in words: "3 of 8192 film coordinates at N = 64 are outside ...".
+        self.where = (f"{np.count_nonzero(bad)} of {points.size} {what} at N = "
+                      f"{points.shape[1]} are outside [0, 1), e.g. {float(points[bad][0])!r}")
+        super().__init__(f"{sampler}: {self.where} (mcrt check {sampler} tests the sampler "
+                         f"contract)")
+
+
+def check_points(sampler: str, points: np.ndarray, what: str = "film coordinates") -> None:
+    """Refuse points that are not finite or not in [0, 1) (a user's sampler
+    breaking the contract) with :class:`PointsOutside`: the integrands would be
+    evaluated off the unit square, or on NaN, and the MSE would be wrong or NaN
+    without saying why."""
+    if not (np.isfinite(points) & (points >= 0.0) & (points < 1.0)).all():
+        raise PointsOutside(sampler, points, what)
 
 
 def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[int] = DEFAULT_COUNTS,

@@ -173,3 +173,22 @@ def test_a_generator_on_numpys_global_rng_is_refused(capsys, cache):
         registry.unregister("global_rng_test")
         if "seeded_rng_test" in registry.names():
             registry.unregister("seeded_rng_test")
+
+
+def test_rows_measured_on_points_outside_the_unit_square_say_they_cannot_be(plain):
+    """NaN once in 2^12 values: the range row fails, rightly, but mse_rate was an
+    "error" row (SamplerError from the bench's point check) and discrepancy and
+    spectrum printed numpy's "ValueError: points must lie in the unit hypercube".
+    Each now says, in one line, that it cannot be measured and why."""
+    from mcrt.analysis.check import run_checks
+
+    rows = {r.name: r for r in run_checks(plain("nan"), quick=True)}
+    assert rows["range"].status == "FAIL"
+    for name in ("mse_rate", "discrepancy", "spectrum"):
+        row = rows[name]
+        assert (row.status, row.figure) == ("FAIL", "not tested"), (name, row)
+        assert row.detail.startswith("cannot be measured: ") and len(row.detail.splitlines()) == 1
+        assert "outside [0, 1), e.g. nan (see range)" in row.detail, row.detail
+        assert "Error" not in row.detail
+    rows = {r.name: r for r in run_checks(plain(), quick=True)}  # a sound sampler is measured
+    assert all(rows[n].status == "pass" for n in ("mse_rate", "discrepancy", "spectrum"))
