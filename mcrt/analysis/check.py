@@ -14,7 +14,8 @@ that leaves [0, 1) once in 2^20 values is found with probability 1 - e^-9, quick
 once in 2^16; with 4096 lanes it passed), **clone** (made mid-stream after
 ``advance()``: the same values), **fork** (reseeded: what a fresh instance
 draws), **seeding** (another seed changes every call: at most half of the lanes
-keep a value; a permuted grid keeps ~1/N, a seed-blind call all).
+keep a value; a permuted grid keeps ~1/N, a seed-blind call all), **pixels**
+(pixels do not share values: :func:`check_pixels`).
 
 Sample counts. A sampler may serve only some counts: its ``sample_counts()``
 (``pointset``: the set sizes of its file) lists them; without the method, or
@@ -48,6 +49,10 @@ from ..samplers.points import lane_array, point_sets
 
 CALLS: tuple[str, ...] = ("2d", "1d", "1d", "2d", "2d", "1d")
 MAX_KEPT_SHARE = 0.5
+#: Most likely chance repeat of one value, per value of another pixel (:func:`check_pixels`).
+CHANCE_1D = 2.0 ** -20
+#: Share of a call's values found in other pixels, beyond chance, that fails the pixels row.
+MAX_SHARED_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -276,9 +281,134 @@ def check_seeding(subject: Subject, budget: Budget, seed: int = 0) -> CheckResul
                        f"seeds {seed} and {other}: {detail}", values={"kept": kept})
 
 
+def table_sets(sampler: mi.Sampler) -> int | None:
+    """Sets T that pixels share unshifted (``pointset`` with randomize none or
+    symmetry: pixels that draw one set get its points); None for any other
+    sampler (a random shift makes each set's estimate unbiased on its own, and
+    the pixels' estimates uncorrelated)."""
+    table = getattr(sampler, "_table", None)
+    if table is None or getattr(sampler, "randomize", None) not in ("none", "symmetry"):
+        return None
+    return int(table()[2])
+
+
+def shared_values(values: np.ndarray, n: int) -> tuple[float, bool, tuple[int, int, int]]:
+    """Of ``values`` ``(lanes, d)`` on pixel-major lanes, ``n`` per pixel: the
+    share of lanes whose value also occurs in another pixel, whether every
+    pixel holds every value, and an example ``(pixel, other pixel, values in
+    common)`` (``(0, 0, 0)`` when none is shared)."""
+    pixels = len(values) // n
+    pixel = np.arange(len(values)) // n
+    _, ids = np.unique(values, axis=0, return_inverse=True)
+    ids = ids.reshape(-1)
+    owners = np.unique(ids * pixels + pixel)  # (value, pixel) pairs
+    holders = np.bincount(owners // pixels, minlength=int(ids.max()) + 1)[ids]
+    shared = holders > 1
+    if not shared.any():
+        return 0.0, False, (0, 0, 0)
+    first = int(np.argmax(shared))
+    p = int(pixel[first])
+    q = int(next(o % pixels for o in owners[owners // pixels == ids[first]] if o % pixels != p))
+    common = np.intersect1d(ids[p * n:(p + 1) * n], ids[q * n:(q + 1) * n]).size
+    return float(np.mean(shared)), bool(np.all(holders == pixels)), (p, q, int(common))
+
+
+def _calls(indices: list[int]) -> str:
+    return ", ".join(f"{i + 1} ({CALLS[i]})" for i in indices)
+
+
+def check_pixels(subject: Subject, budget: Budget, seed: int = 0) -> CheckResult:
+    """Pixels decorrelated: per call, the share of values (1D values, 2D points)
+    that also occur in another pixel at that call, on the contract's P x N lanes.
+
+    A sampler that leaves the pixel out of its keys gives every pixel the same
+    values (100%), one keyed on half the pixel index pairs of pixels (100%).
+    By chance, a value of another pixel equals a given one with probability
+    at most ``CHANCE_1D = 2^-20`` per 1D value of that pixel (mcrt: positions
+    inside one of n strata on 2^(22 - ceil log2 n) steps, end steps 1.5 times
+    as likely, so <= 3 n 2^-22 for its one stratum-mate; values on 2^-24;
+    Mitsuba's on 2^-23 or finer) and ``2^-40`` per 2D point: the expected
+    share is at most ``chance = (P - 1) N 2^-20`` (1D; 2D is ~0): 2.3e-4 at
+    16 px x 16 (quick 8 px: 1.1e-4; jittered's jitter 0.01 squeezes the steps
+    100-fold: 0.8% seen). A call fails above ``chance + MAX_SHARED_SHARE``
+    (1/2). Independent values coincide lane by lane (Poisson, mean
+    P N chance / 2 = 0.03 pairs, where P N / 4 = 64 fail); a
+    lattice shifted per pixel (``uniform_grid`` off the film, Mitsuba's
+    ``ldsampler``: 2 of 16 pixels coincide at N = 4096) a whole pixel at a
+    time, with probability <= N 2^-20 per pair of pixels: failing takes more
+    than P/2 pixels, at least P/4 + 1 coinciding pairs, Poisson of mean
+    C(P, 2) N 2^-20: >= 5 of 1.8e-3 (full, ~2e-16), >= 3 of 4.3e-4 (quick,
+    ~1e-11). A 1D call at N >= ~35000 (P = 16) cannot fail: chance could reach 1/2.
+
+    Shared by design, reported and not tested: the film call of a sampler
+    claiming **quadrature** (``uniform_grid``: the same cell centres in every
+    pixel; the claim checks them), and the calls an unshifted table serves
+    (``pointset``, randomize none or symmetry: its 2D calls, and 1D calls with
+    dims1d projection): pixels that draw one of its T sets share its points,
+    as :data:`~mcrt.samplers.pointset.RANDOMIZATIONS` says: a share of
+    ``1 - (1 - 1/K)^(P - 1)`` expected, K = T sets (x 8 symmetries), T the
+    user's (16 sets, none: 62%; 88% seen in a call), so no margin passes every
+    sound table; the error they share is what unbiasedness tests, with
+    ``se^2 = sd^2 (1/P + 1/T)`` (``none`` on sets that are not random fails there)."""
+    n, pixels = subject.count(budget.contract_spp), budget.contract_pixels
+    sampler = subject.seeded(n, pixels, seed)
+    n = sampler.sample_count()
+    calls = draw(sampler, lanes(sampler, pixels))
+    exempt: dict[int, str] = {}
+    sets = table_sets(sampler)
+    if sets is not None:
+        projected = getattr(sampler, "dims1d", None) == "projection"
+        randomize = getattr(sampler, "randomize", "none")
+        kinds = sets * (8 if randomize == "symmetry" else 1)  # sets x symmetries
+        expected = 1 - (1 - 1 / kinds) ** (pixels - 1)
+        exempt.update({i: f"{sets} unshifted table sets (randomize={randomize}): pixels that "
+                          f"draw one set share its points (~{expected:.1%} expected)"
+                       for i, c in enumerate(CALLS) if c == "2d" or projected})
+    if "quadrature" in subject.info.claims:
+        exempt[0] = "quadrature: the film grid is the same in every pixel (see the claim)"
+    found = [shared_values(v, n) for v in calls]
+    shares = [share for share, _, _ in found]
+    chance = [(pixels - 1) * n * CHANCE_1D ** (2 if c == "2d" else 1) for c in CALLS]
+    tested = [i for i in range(len(CALLS)) if i not in exempt]
+    bad = [i for i in tested if shares[i] > chance[i] + MAX_SHARED_SHARE]
+    where = f"{pixels} px x {n} spp"
+    if bad:
+        same = [i for i in bad if found[i][1]]
+        p, q, common = found[bad[0]][2]
+        every = "every call" if len(same) == len(CALLS) else f"call{'s' * (len(same) > 1)} " \
+            f"{_calls(same)}"
+        cause = (f"every pixel gets the same values in {every}: the values do not depend on "
+                 f"the pixel" if same else
+                 f"e.g. pixels {p} and {q} have {common} of {n} values in common in call "
+                 f"{bad[0] + 1}: pixels share keys")
+        detail = (f"{where}: pixels share samples: "
+                  + ", ".join(f"call {i + 1} ({CALLS[i]}) {shares[i]:.0%}" for i in bad)
+                  + f" of values also occur in another pixel (chance alone <= "
+                    f"{max(chance[i] for i in bad):.2%}); {cause}; hash the whole pixel into "
+                    f"each value's key, as mcrt and pbrt-v4 hash (seed, pixel, dimension)")
+    else:
+        top = max((shares[i] for i in tested), default=0.0)
+        detail = (f"{where}: at most {top:.2%} of a call's values occur in another pixel "
+                  f"(chance alone <= {max(chance[i] for i in tested):.2%}; more than "
+                  f"{MAX_SHARED_SHARE:.0%} above chance fails)" if tested
+                  else f"{where}: no call tested")
+        blind = [i for i in tested if chance[i] + MAX_SHARED_SHARE >= 1]
+        if blind:
+            detail += f"; calls {_calls(blind)} cannot fail at N = {n}: chance alone is too high"
+    for reason in dict.fromkeys(exempt.values()):
+        idx = [i for i in exempt if exempt[i] == reason]
+        detail += (f"; call{'s' * (len(idx) > 1)} {_calls(idx)} "
+                   f"{'/'.join(f'{shares[i]:.0%}' for i in idx)} shared, not tested: {reason}")
+    figure = (f"max {max(shares[i] for i in tested):.0%} shared" if tested
+              else "none tested")
+    return CheckResult("pixels", not bad, figure, detail,
+                       values={"shared": shares, "chance": chance,
+                               "tested": [i not in exempt for i in range(len(CALLS))]})
+
+
 Check = Callable[[Subject, Budget, int], CheckResult]
 CONTRACT: tuple[Check, ...] = (check_determinism, check_range, check_clone, check_fork,
-                               check_seeding)
+                               check_seeding, check_pixels)
 
 
 def checks_for(subject: Subject) -> list[tuple[str, Check]]:

@@ -34,6 +34,8 @@ ROWS: dict[str, str] = {
     "clone": "a clone made mid-stream draws what the original draws",
     "fork": "a fork, seeded again, draws what a fresh instance draws",
     "seeding": "another seed changes the values of every call",
+    "pixels": "no call gives other pixels the same values, beyond chance (a quadrature "
+              "film and an unshifted table's sets are shared by design: reported)",
     **{name: f"claim: {text}" for name, text in registry.CLAIMS.items()},
     "unbiasedness": "mean estimate of each integrand (and of a product over two dimensions) "
                     "equals its value: t tests, Holm's correction at alpha 1e-3 (a quadrature "

@@ -51,11 +51,20 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import mitsuba as mi
 import numpy as np
 
 from . import patterns
-from .check import Budget, Check, CheckResult, Subject, Unsupported, draw, lanes, outside
+from .check import (
+    Budget,
+    Check,
+    CheckResult,
+    Subject,
+    Unsupported,
+    draw,
+    lanes,
+    outside,
+    table_sets,
+)
 from .integrate import INTEGRANDS, Convergence, Integrand, run_convergence
 from .significance import holm, t_quantile, two_sided_p
 
@@ -66,15 +75,6 @@ MIN_RATE_COUNTS = 3
 PATTERN_MARGIN, PATTERN_SIGMAS = 0.1, 4.0
 #: Fewest pixels a capped budget leaves (unbiasedness, patterns).
 MIN_PIXELS = 8
-
-
-def _table_sets(sampler: mi.Sampler) -> int | None:
-    """Sets T that pixels share unshifted (a random shift makes each set's
-    estimate unbiased on its own, and the pixels' estimates uncorrelated)."""
-    table = getattr(sampler, "_table", None)
-    if table is None or getattr(sampler, "randomize", None) not in ("none", "symmetry"):
-        return None
-    return int(table()[2])
 
 
 def _t_test(values: np.ndarray, exact: float, sets: int | None,
@@ -133,7 +133,7 @@ def check_unbiasedness(subject: Subject, budget: Budget, seed: int = 0) -> Check
     n = subject.count(budget.unbiased_spp)
     pixels = min(budget.unbiased_pixels, max(MIN_PIXELS, budget.unbiased_lanes // n))
     sampler = subject.seeded(n, pixels, seed)
-    sets, n = _table_sets(sampler), sampler.sample_count()
+    sets, n = table_sets(sampler), sampler.sample_count()
     calls = draw(sampler, lanes(sampler, pixels), UNBIASED_CALLS)
     bad = [f"call {i + 1} (next_{UNBIASED_CALLS[i]}): {outside(c)}"
            for i, c in enumerate(calls) if outside(c)]

@@ -60,9 +60,9 @@ def test_jittered_passes_and_writes_the_report(capsys, tmp_path):
     assert code == 0, out + err
     rows = _rows(out)
     assert set(rows.values()) == {"pass"}
-    assert {"determinism", "range", "clone", "fork", "seeding", "stratified", "unbiasedness",
-            "mse_rate", "discrepancy", "spectrum"} == set(rows)
-    assert "all 10 checks hold" in out
+    assert {"determinism", "range", "clone", "fork", "seeding", "pixels", "stratified",
+            "unbiasedness", "mse_rate", "discrepancy", "spectrum"} == set(rows)
+    assert "all 11 checks hold" in out
     data = json.loads((tmp_path / "results.json").read_text())
     assert data["passed"] and data["sampler"] == "jittered" and data["quick"]
     assert [c["name"] for c in data["checks"]] == list(rows)
@@ -174,6 +174,47 @@ def test_uniform_grid_reports_its_film_bias_without_failing():
     assert tested == {f"{g} {term}" for g in ("pi", "disk", "gaussian")
                       for term in ("call 4", "call 3 x 4")} | {"u call 2", "u < 1/3 call 2"}
     assert result.values["disk"]["relative_bias"] > 0.4 and result.values["disk"]["p"] is None
+
+
+MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+
+
+@pytest.mark.parametrize("name", [*registry.names("mcrt"), *MITSUBA_SAMPLERS])
+def test_every_shipped_sampler_passes_the_pixels_row(name):
+    """Each hashes (or scrambles by) the pixel: no tested call shares a value
+    with another pixel (chance: <= 0.01% at 8 px x 16; a value in common would
+    be 1.6%); the limit is 50% above chance."""
+    from mcrt.analysis.check import check_pixels
+
+    result = check_pixels(Subject(name), QUICK)
+    assert result.passed, result.detail
+    shared = [s for s, t in zip(result.values["shared"], result.values["tested"], strict=True)
+              if t]
+    assert shared and max(shared) < 0.05, result.detail
+
+
+def test_pixels_shared_by_design_are_reported_not_tested(cache):
+    """uniform_grid's film call is the same grid in every pixel (claimed, the
+    quadrature row checks it): 100%, reported. A pointset of T = 16 sets with
+    randomize none shares sets between pixels as documented, 1 - (15/16)^15 =
+    62% expected at 16 px (44-62% seen, 88% in a quick call): its 2D calls are
+    reported, its stratified 1D calls tested; with a shift every call is tested."""
+    from mcrt.analysis.check import check_pixels
+    from mcrt.samplers.point_sources import example_file
+
+    grid = check_pixels(Subject("uniform_grid"), FULL)
+    assert grid.passed and grid.values["shared"][0] == 1.0
+    assert grid.values["tested"] == [False] + [True] * 5
+    assert "call 1 (2d) 100% shared, not tested: quadrature" in grid.detail
+    sets = str(example_file(16, sets=16))
+    table = check_pixels(Subject("pointset", {"filename": sets, "randomize": "none"}), FULL)
+    assert table.passed and table.values["tested"] == [c == "1d" for c in
+                                                       ("2d", "1d", "1d", "2d", "2d", "1d")]
+    assert max(table.values["shared"]) > 0.4, table.detail
+    assert "16 unshifted table sets (randomize=none)" in table.detail
+    assert "(~62.0% expected)" in table.detail
+    shifted = check_pixels(Subject("pointset", {"filename": sets, "randomize": "shift"}), FULL)
+    assert shifted.passed and all(shifted.values["tested"]), shifted.detail
 
 
 def _biased_quadrature_class() -> type:

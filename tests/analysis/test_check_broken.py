@@ -3,7 +3,8 @@
 A plain ``mi.Sampler`` subclass (not a :class:`McrtSampler`) of hashed white
 noise, keyed by (seed, lane, dimension), with one mistake a researcher might
 make switched on by ``bug``: dimension 2 repeats dimension 0, a value of 1.0
-once in 2^20 or NaN once in 2^12, the same points in every pixel. Its ``seed`` does not call the
+once in 2^20 or NaN once in 2^12, the same points in every pixel, or in pixels 2k and 2k + 1
+(a key of the pixel index halved). Its ``seed`` does not call the
 base class's (renders work without it: ``test_python_api``), so Mitsuba's
 ``wavefront_size()`` stays 0. Seeds are fixed, the budget is the quick one.
 """
@@ -38,7 +39,9 @@ def _plain_class(bug: str = "") -> type:
 
         def _u(self, salt):
             dim = dr.select(self.dim == 2, 0, self.dim) if bug == "dim2eq0" else self.dim
-            lane = self.lane % self.spp if bug == "same_pixel" else self.lane
+            lane = (self.lane % self.spp if bug == "same_pixel" else
+                    self.lane // (2 * self.spp) * self.spp + self.lane % self.spp
+                    if bug == "pair_pixels" else self.lane)
             h = hash_keys(self.key, lane, dim * 2 + salt)
             odd = (h & (0xFFF if bug == "nan" else 0xFFFFF)) == 7  # once in 2^12 / 2^20
             return dr.select(odd, {"nan": dr.nan, "one": 1.0}.get(bug, 0.5), unit_float(h)) \
@@ -192,3 +195,37 @@ def test_rows_measured_on_points_outside_the_unit_square_say_they_cannot_be(plai
         assert "Error" not in row.detail
     rows = {r.name: r for r in run_checks(plain(), quick=True)}  # a sound sampler is measured
     assert all(rows[n].status == "pass" for n in ("mse_rate", "discrepancy", "spectrum"))
+
+
+def test_a_sampler_giving_every_pixel_the_same_points_fails_the_pixels_row(plain):
+    """The pixel left out of the key: every pixel draws the same 16 values in
+    every call. Only unbiasedness failed ("bias ..., no sampling error"), which
+    does not name the cause; the pixels row finds 100% of values in other
+    pixels where chance gives <= 0.01% (8 px x 16, quick) and says why."""
+    from mcrt.analysis.check import run_checks
+
+    rows = {r.name: r for r in run_checks(plain("same_pixel"), quick=True)}
+    row = rows["pixels"]
+    assert row.status == "FAIL" and row.values["shared"] == [1.0] * 6, row.detail
+    assert "every pixel gets the same values in every call: the values do not depend on the " \
+           "pixel" in row.detail and "hash the whole pixel into each value's key" in row.detail
+    assert all(rows[n].status == "pass" for n in ("determinism", "range", "clone", "fork",
+                                                   "seeding"))
+
+
+def test_a_sampler_giving_pairs_of_pixels_the_same_points_fails_the_pixels_row(plain):
+    """Pixels 2k and 2k + 1 draw the same values (a key of pixel // 2): every
+    other row held, quick and full (pairs halve the independent trials, which
+    no mean or rate test sees). The pixels row: 100% of values shared, at both
+    budgets, naming a pair."""
+    from mcrt.analysis.check import FULL, check_pixels, run_checks
+
+    name = plain("pair_pixels")
+    rows = {r.name: r for r in run_checks(name, quick=True)}
+    assert [n for n, r in rows.items() if r.status != "pass"] == ["pixels"], {
+        n: r.detail for n, r in rows.items() if r.status != "pass"}
+    for row in (rows["pixels"], check_pixels(Subject(name), FULL)):
+        assert not row.passed and row.values["shared"] == [1.0] * 6, row.detail
+        assert "pixels share samples" in row.detail
+        assert "e.g. pixels 0 and 1 have 16 of 16 values in common in call 1: pixels share " \
+               "keys" in row.detail
