@@ -233,7 +233,7 @@ def _pass_tasks(args: argparse.Namespace, planned, params: dict[str, str],
     remember_planned(source, params, planned, overrides, wrap)  # for in-process tasks too
     task = FilmPassTask(tuple(sorted(params.items())), tuple(sorted(overrides.items())), wrap,
                         name, tuple(sorted(sampler_params_of(sampler).items())), spp,
-                        args.seed, base_seed(sampler))
+                        args.seed, base_seed(sampler), scene_sampler=args.sampler is None)
     return PassTasks(functools.partial(film_pass, task), {"scene": source})
 
 

@@ -28,7 +28,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.render import render_film_pass
-from ..core.sampling import make_sampler, quiet_sampler_warnings
+from ..core.sampling import make_sampler, quiet_sampler_warnings, sampler_params
 from ..core.scene_files import SceneBundle, SceneSource, local_scene
 from .plan import PlannedScene, plan_scene
 
@@ -93,6 +93,10 @@ class FilmPassTask:
     spp: int
     seed: int
     base_seed: int = 0  # the sampler's own seed property (a scene may author one)
+    #: the scene's own sampler (no ``--sampler``): its parameters are read from the
+    #: scene as the task loaded it, so that a file it names (a ``pointset``'s
+    #: ``filename``) is the scene bundle's copy, not the client's path
+    scene_sampler: bool = False
 
 
 def film_pass(task: FilmPassTask, index: int, *, passes: int,
@@ -101,9 +105,11 @@ def film_pass(task: FilmPassTask, index: int, *, passes: int,
     :func:`~mcrt.core.render.render_film_pass` makes them, with the scene planned
     as ``mcrt render`` plans it (its motion sub-frames too)."""
     planned = planned_scene(scene, dict(task.params), dict(task.overrides), task.wrap)
+    params = dict(task.sampler_params)
+    if task.scene_sampler:  # the same scene, its files where this machine has them
+        params = sampler_params(planned.scene.sensors()[0].sampler())
     with quiet_sampler_warnings():  # (the client has said it once)
-        sampler = make_sampler(task.sampler, task.spp, task.base_seed,
-                               **dict(task.sampler_params))
+        sampler = make_sampler(task.sampler, task.spp, task.base_seed, **params)
     _, on_pass = planned.schedule(sampler, task.spp, task.seed)
     return render_film_pass(planned.scene, sampler, index, passes, seed=task.seed,
                             on_pass=on_pass)
