@@ -281,6 +281,10 @@ def _run(argv: list[str], process: bool) -> int:
                 _mitsuba_log(args.quiet):
             _use_variant(args.variant)
             _load_plugins(args)
+            from ..core.provenance import source_digest
+
+            source_digest()  # the code this command runs, hashed before it starts (cached):
+            # outputs of a long run do not credit it with an edit made meanwhile
             code = int(args.run(args) or 0)
             sys.stdout.flush()  # a closed pipe shows here, not at exit
             return code

@@ -299,3 +299,12 @@ def test_from_renders_a_demo_image_again(capsys):
         assert header["mitsuba_version"] == mi.__version__ and header["scene_digest"]
         code, out, _ = _again(capsys, Path("demo") / name)
         assert code == 0 and "bit for bit" in out, out
+
+
+def test_a_command_hashes_mcrt_s_source_when_it_starts(capsys):
+    """The digest is taken when a command starts, not when its first output is
+    written: an edit of mcrt's files during a long render is not credited to it.
+    (``mcrt plan`` writes nothing, yet the digest is there after it.)"""
+    source_digest.cache_clear()
+    assert run_cli(capsys, "-q", "plan", str(CORNELL))[0] == 0
+    assert source_digest.cache_info().currsize == 1
