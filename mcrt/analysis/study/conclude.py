@@ -98,7 +98,7 @@ def timing_verdict(cells: Sequence[Cell], environment: dict[str, Any]) -> dict[s
             "disturbed": disturbed, "competed": busy or any(d["loaded"] for d in doubtful),
             "doubtful_cells": doubtful, "loaded_share": loaded,
             "loadavg_start": start.get("loadavg"), "loadavg_end": end.get("loadavg"),
-            "cpus_usable": start.get("cpus_usable")}
+            "cpus_usable": start.get("cpus_usable"), "cpu_quota": start.get("cpu_quota")}
 
 
 def _loaded(others: Sequence[int | None]) -> bool:
@@ -206,18 +206,33 @@ def timing_lines(timing: dict[str, Any], retime: str = "") -> list[str]:
 
 def cpus_line(environment: dict[str, Any]) -> str:
     """The note that a study ran on fewer CPUs than its machine has (empty if
-    not): ``environment["cpus"]`` is the machine's count, ``environment["machine"]
-    ["cpus_usable"]`` the CPUs this process could run on (its CPU affinity: taskset,
-    a container's cpuset). Renders use every usable CPU, so a pinned study's
-    absolute times are slower than the machine's (one of two CPUs: ~70%), while
-    the ratios pair renders taken under the same limit."""
-    usable = (environment.get("machine") or {}).get("cpus_usable")
+    not): ``environment["cpus"]`` is the machine's count; ``environment["machine"]``
+    holds ``cpus_usable``, the CPUs this process could run on (its CPU affinity:
+    taskset, a container's cpuset), and ``cpu_quota``, the CPUs its cgroup's CPU
+    quota allows (``docker --cpus``; None or absent: no quota). The smaller of the
+    two limits the study, and the note names it. Renders use every usable CPU, so
+    a limited study's absolute times are slower than the machine's (one of two
+    CPUs: ~70%), while the ratios pair renders taken under the same limit."""
+    facts = environment.get("machine") or {}
     cpus = environment.get("cpus")
-    if not (isinstance(usable, int) and isinstance(cpus, int)) or not 0 < usable < cpus:
+    if not isinstance(cpus, int) or cpus <= 0:
         return ""
-    return (f"only {usable} of the machine's {cpus} CPUs were usable (CPU affinity: taskset, "
-            f"a container's cpuset): the absolute times hold for {usable} "
-            f"CPU{'s' if usable != 1 else ''}, not for the whole machine; ratios are unaffected")
+    limits = {}
+    usable = facts.get("cpus_usable")
+    if isinstance(usable, int) and 0 < usable < cpus:
+        limits["CPU affinity: taskset, a container's cpuset"] = float(usable)
+    quota = facts.get("cpu_quota")
+    if (isinstance(quota, (int, float)) and not isinstance(quota, bool)
+            and math.isfinite(quota) and 0 < quota < cpus):
+        limits["a cgroup CPU quota: docker --cpus, cpu.max"] = float(quota)
+    if not limits:
+        return ""
+    limit = min(limits.values())
+    why = "; ".join(k for k, v in limits.items() if v == limit)
+    count = f"{limit:.3g}"
+    return (f"only {count} of the machine's {cpus} CPUs were usable ({why}): the absolute "
+            f"times hold for {count} CPU{'s' if limit != 1 else ''}, not for the whole "
+            f"machine; ratios are unaffected")
 
 
 def _cells_text(cells: Sequence[dict[str, Any]], shown: int = 8) -> str:
