@@ -18,7 +18,7 @@ import numpy as np
 
 from .aliasing import UNMEASURED
 from .study import StudyResult
-from .study.conclude import bias_lines, cost_text, timing_lines
+from .study.conclude import bias_lines, cost_text, ratio_parts, timing_lines
 from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Cell, Field
 
 
@@ -60,6 +60,8 @@ def _show(field: Field, record: Mapping[str, Any]) -> str:
         return "" if record[name] else html.escape(field.column.false)
     if show in ("sd", "se"):
         return f"{fmt(value())} &plusmn; {fmt(value(f'{name}_{show}'), 2)}"
+    if show == "interval" and name == "efficiency_ratio":
+        return _ratio(value(), value(f"{name}_low"), value(f"{name}_high"))
     if show == "interval":
         return f"{fmt(value())} [{fmt(value(f'{name}_low'))}, {fmt(value(f'{name}_high'))}]"
     if show == "z":
@@ -119,13 +121,23 @@ def _cost(fit: Mapping[str, Any], key: str, scale: float) -> str:
     return "&ndash;" if text == "-" else html.escape(text)
 
 
+def _ratio(value: float, low: float, high: float) -> str:
+    """An efficiency ratio and its interval (HTML), to the digits the interval's width
+    supports (:func:`~.study.conclude.ratio_parts`, as on the console)."""
+    if not math.isfinite(value):
+        return "&ndash;"
+    shown, lower, upper = ("&ndash;" if p == "-" else html.escape(p)
+                           for p in ratio_parts(value, low, high))
+    return f"{shown} [{lower}, {upper}]"
+
+
 def _ratio_cell(cell: Cell) -> str:
     """An efficiency ratio with its interval; 'n.s.' when the interval holds 1."""
     if not cell["resolved"]:
         return "unresolved"
     value, low, high = (cell[k] for k in ("efficiency_ratio", "efficiency_ratio_low",
                                           "efficiency_ratio_high"))
-    text = f"{fmt(value)} [{fmt(low)}, {fmt(high)}]"
+    text = _ratio(value, low, high)
     if math.isfinite(low) and low <= 1.0 <= high and low < high:
         text += " <i>n.s.</i>"
     return text

@@ -28,6 +28,7 @@ from ..analysis.study.conclude import (
     cpus_line,
     interval_text,
     ratio_sentence,
+    ratio_text,
     timing_lines,
 )
 from ..core.atomic import remedy
@@ -251,8 +252,8 @@ def _print_summary(result: StudyResult) -> None:
             for spp in config.spp:
                 c = cells.get((sampler.label, spp))
                 row.append("pending" if c is None else "unresolved" if not c["resolved"] else
-                           interval_text(c["efficiency_ratio"], c["efficiency_ratio_low"],
-                                         c["efficiency_ratio_high"], ".2f"))
+                           ratio_text(c["efficiency_ratio"], c["efficiency_ratio_low"],
+                                      c["efficiency_ratio_high"]))
             print(f"  {sampler.label:14s} " + " ".join(f"{r:>20s}" for r in row))
         largest = max(spp for (_, spp) in cells) if cells else None
         for sampler in config.samplers:

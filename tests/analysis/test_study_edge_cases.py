@@ -100,3 +100,32 @@ def test_a_cost_is_printed_to_the_precision_of_its_standard_error():
     assert cost_text(1.474e-3, 0.06e-3, 1e3) == "1.47"
     assert cost_text(0.5e-9, 1e-9, 1e9) == "<3"  # its 95% interval reaches 0: a bound, up
     assert cost_text(2e-9, float("nan"), 1e9) == "2.00"  # no se: the given spec
+
+
+def test_an_efficiency_ratio_is_printed_to_the_digits_its_interval_supports():
+    """The console printed ``11.49 [2.76, 47.91]``: four digits of a ratio whose
+    interval spans a factor of 17. Ratios now keep 3 significant digits at most,
+    2 when the interval spans more than a factor of 1.2 (+-10%), alike on the console, in the
+    sentences and in the report's tables (results.json keeps the full values)."""
+    from mcrt.analysis.report_tables import CELL_COLUMNS, _ratio_cell, _show
+    from mcrt.analysis.study.conclude import ratio_sentence, ratio_text
+
+    assert ratio_text(11.49, 2.76, 47.91) == "11 [2.8, 48]"
+    assert ratio_text(0.9871, 0.9623, 1.0134) == "0.987 [0.962, 1.01]"
+    assert ratio_text(2.5641, 2.1739, 2.9412) == "2.6 [2.2, 2.9]"
+    assert ratio_text(1.1934, 1.1187, 1.2781) == "1.19 [1.12, 1.28]"  # within a factor 1.2
+    assert ratio_text(1234.5, 700.0, 2100.0) == "1200 [700, 2100]"  # plain decimals
+    assert ratio_text(9.996, 9.99, 10.01) == "10.0 [9.99, 10.0]"
+    assert ratio_text(math.nan, math.nan, math.nan) == "-"
+    cell = {"sampler": "stratified", "spp": 16, "resolved": True, "efficiency_ratio": 2.5641,
+            "efficiency_ratio_low": 2.1739, "efficiency_ratio_high": 2.9412}
+    assert ratio_sentence(cell, "independent") == (
+        "stratified needs 0.39x [0.34, 0.46] of independent's time for the same error at "
+        "16 spp")
+    wide = {**cell, "efficiency_ratio": 11.49, "efficiency_ratio_low": 2.76,
+            "efficiency_ratio_high": 47.91}
+    assert ratio_sentence(wide, "independent").startswith(
+        "stratified needs 0.087x [0.021, 0.36] of independent's time")
+    assert _ratio_cell(wide) == "11 [2.8, 48]"
+    field = next(f for f in CELL_COLUMNS if f.name == "efficiency_ratio")
+    assert _show(field, wide) == "11 [2.8, 48]"

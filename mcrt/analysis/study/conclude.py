@@ -121,6 +121,47 @@ def interval_text(value: float, low: float, high: float, spec: str = ".3g") -> s
     return f"{_g(value, spec)} [{_g(low, spec)}, {_g(high, spec)}]"
 
 
+#: An efficiency ratio is written to this many significant digits at most...
+RATIO_DIGITS = 3
+#: ... and one fewer when its 95% interval spans more than this factor (high / low): past
+#: +-10% the third digit is noise (0.39 [0.34, 0.46], not 0.390 [0.340, 0.460]).
+RATIO_WIDE = 1.2
+
+
+def _sig(value: float, digits: int) -> str:
+    """``value`` to ``digits`` significant digits in plain decimals (1200, 0.0046)."""
+    if not math.isfinite(value):
+        return "-"
+    if value == 0:
+        return "0"
+    places = digits - 1 - math.floor(math.log10(abs(value)))
+    rounded = round(value, places)
+    if rounded and math.floor(math.log10(abs(rounded))) > math.floor(math.log10(abs(value))):
+        places -= 1  # (9.996 -> 10.0 at 3 digits, not 10.00)
+    return f"{round(value, places):.{max(0, places)}f}"
+
+
+def ratio_parts(value: float, low: float, high: float) -> tuple[str, str, str]:
+    """An efficiency ratio and its 95% interval, each to the significant digits the
+    interval's width supports: :data:`RATIO_DIGITS` (``0.987 [0.962, 1.01]``), one
+    fewer when the interval spans more than a factor :data:`RATIO_WIDE`
+    (``2.6 [2.2, 2.9]``; ``11 [2.8, 48]``, once printed ``11.49 [2.76, 47.91]``:
+    four digits of a figure known to a factor of 17). The console, the report and the sentences
+    "needs 0.39x [0.34, 0.46]" all write ratios so; results.json keeps full values."""
+    wide = not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high
+                and high <= RATIO_WIDE * low)
+    digits = RATIO_DIGITS - 1 if wide else RATIO_DIGITS
+    return _sig(value, digits), _sig(low, digits), _sig(high, digits)
+
+
+def ratio_text(value: float, low: float, high: float) -> str:
+    """``value [low, high]`` of an efficiency ratio (:func:`ratio_parts`; ``-`` for NaN)."""
+    if not math.isfinite(value):
+        return "-"
+    v, lo, hi = ratio_parts(value, low, high)
+    return f"{v} [{lo}, {hi}]"
+
+
 def cost_text(value: float, se: float, scale: float, spec: str = ".2f") -> str:
     """A cost of the timing fit (:func:`mcrt.core.timing.fit_cost`: seconds per
     render or per sample) times ``scale``, in words: the value when its 95%
@@ -247,11 +288,12 @@ def ratio_sentence(cell: Cell, baseline: str) -> str:
     low, high = cell["efficiency_ratio_low"], cell["efficiency_ratio_high"]
     if not math.isfinite(value) or cell["sampler"] == baseline:
         return ""
-    text = (f"{cell['sampler']} needs {_g(1 / value, '.2f')}x [{_g(1 / high, '.2f')}, "
-            f"{_g(1 / low, '.2f')}] of {baseline}'s time for the same error at {cell['spp']} "
-            f"spp")
+    times, lower, upper = ratio_parts(*(1 / v if v else math.inf for v in (value, high, low)))
+    text = (f"{cell['sampler']} needs {times}x [{lower}, {upper}] of {baseline}'s time for "
+            f"the same error at {cell['spp']} spp")
     if low <= 1.0 <= high:
         text += " (no significant difference)"
     return text
-__all__ = ["BIAS_ALPHA", "bias_lines", "conclude", "cost_text", "cpus_line", "interval_text",
-           "ratio_sentence", "timing_lines", "timing_verdict"]
+__all__ = ["BIAS_ALPHA", "RATIO_DIGITS", "RATIO_WIDE", "bias_lines", "conclude", "cost_text",
+           "cpus_line", "interval_text", "ratio_parts", "ratio_sentence", "ratio_text",
+           "timing_lines", "timing_verdict"]
