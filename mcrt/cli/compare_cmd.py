@@ -244,9 +244,9 @@ def _print_summary(result: StudyResult) -> None:
                   f"{cost_text(fit['seconds_per_sample'], fit['seconds_per_sample_se'], 1e9):>9s}")
         print(f"  efficiency = 1/(excess MSE x median render time), as a ratio to {baseline}'s "
               f"at the same spp [95%]:")
-        print(f"  {'sampler':14s} " + " ".join(f"{f'{spp} spp':>20s}" for spp in config.spp))
         cells = {(c["sampler"], c["spp_requested"]): c for c in result.cells
                  if c["scene"] == scene}
+        rows = []
         for sampler in config.samplers:
             row = []
             for spp in config.spp:
@@ -254,7 +254,11 @@ def _print_summary(result: StudyResult) -> None:
                 row.append("pending" if c is None else "unresolved" if not c["resolved"] else
                            ratio_text(c["efficiency_ratio"], c["efficiency_ratio_low"],
                                       c["efficiency_ratio_high"]))
-            print(f"  {sampler.label:14s} " + " ".join(f"{r:>20s}" for r in row))
+            rows.append((sampler.label, row))
+        width = max([20, *(len(r) + 1 for _, row in rows for r in row)])  # columns stay apart
+        print(f"  {'sampler':14s} " + " ".join(f"{f'{spp} spp':>{width}s}" for spp in config.spp))
+        for label, row in rows:
+            print(f"  {label:14s} " + " ".join(f"{r:>{width}s}" for r in row))
         largest = max(spp for (_, spp) in cells) if cells else None
         for sampler in config.samplers:
             c = cells.get((sampler.label, largest)) if largest is not None else None

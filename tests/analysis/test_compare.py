@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import fnmatch
+import io
 import json
 import math
 import os
+import re
 import types
 import typing
 from pathlib import Path
@@ -41,6 +44,9 @@ from mcrt.samplers import ALL_SAMPLERS
 from tests.conftest import CHECKERBOARD, ROOT, png_text_of, scene_xml, study_toml
 
 QUICK = ROOT / "configs" / "quick.toml"
+
+#: What a module fixture's command printed, by fixture name.
+PRINTED: dict[str, str] = {}
 FULL = ROOT / "configs" / "full.toml"
 
 GOOD = study_toml(CHECKERBOARD)
@@ -255,13 +261,35 @@ def quick(tmp_path_factory):
     """Run configs/quick.toml through the CLI once (references rendered into an
     empty cache, so the test is hermetic)."""
     out = tmp_path_factory.mktemp("quick")
-    with pytest.MonkeyPatch.context() as mp:
+    printed = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed):
         mp.setenv("MCRT_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
         assert main(["-q", "compare", str(QUICK), "-o", str(out)]) == 0
+    PRINTED["quick"] = printed.getvalue()
     data = json.loads((out / "results.json").read_text())
     with open(out / "results.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     return out, data, rows
+
+
+@pytest.mark.slow
+def test_the_printed_efficiency_table_keeps_its_columns_apart(quick):
+    """Each row of the efficiency-ratio table has one interval per sample count,
+    each ending in ']' and separated from the next by a space, whatever the
+    widths the intervals' precision gives them ("0.789 [0.769, 0.810]" ran into its
+    neighbour in a 20-character column)."""
+    config = load_config(QUICK)
+    lines = PRINTED["quick"].splitlines()
+    heads = [i for i, line in enumerate(lines) if line.startswith("  efficiency = 1/")]
+    assert len(heads) == len(config.scenes)
+    for head in heads:
+        header = lines[head + 1]
+        assert header.split()[1:] == [w for n in config.spp for w in (str(n), "spp")]
+        for line in lines[head + 2:head + 2 + len(config.samplers)]:
+            cells = re.findall(r"(\S+ \[\S+, \S+\]|unresolved|pending)", line)
+            assert len(cells) == len(config.spp), line
+            assert all(line.find(c) > 0 and line[line.find(c) - 1] == " " for c in cells), line
+            assert len(line) == len(header), (line, header)  # right-aligned in the columns
 
 
 def _cells(data, scene, sampler):
