@@ -59,7 +59,7 @@ def busy_for(seconds: float, count: int) -> None:
 
 def usable_cores() -> int:
     """The cores this process may run on (its affinity: ``taskset``, a cpuset), as
-    :func:`mcrt.core.timing.machine` counts them; else every core."""
+    :func:`mcrt.core.machine.machine` counts them; else every core."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):

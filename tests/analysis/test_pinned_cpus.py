@@ -38,7 +38,7 @@ def test_fewer_usable_cpus_than_the_machine_has_are_noted():
 def test_a_pinned_process_records_and_notes_its_cpus():
     """The environment a study records (mcrt.analysis.study.runner.environment's
     cpus and machine facts), taken by a process pinned to CPU 0."""
-    code = ("import os; from mcrt.core.timing import machine; "
+    code = ("import os; from mcrt.core.machine import machine; "
             "from mcrt.analysis.study.conclude import cpus_line; "
             "print(cpus_line({'cpus': os.cpu_count(), 'machine': machine()}))")
     pinned = subprocess.run(["taskset", "-c", "0", sys.executable, "-c", code],
@@ -63,7 +63,7 @@ def _files(root, files: dict[str, str]):
 
 
 def test_a_cgroup_v2_quota_is_read_from_the_process_cgroup(tmp_path):
-    from mcrt.core.timing import cgroup_cpu_quota
+    from mcrt.core.machine import cgroup_cpu_quota
 
     proc, root = tmp_path / "cgroup", tmp_path / "fs"
     _files(tmp_path, {"cgroup": "0::/docker/abc\n", "fs/docker/abc/cpu.max": "100000 100000\n",
@@ -85,7 +85,7 @@ def test_a_cgroup_v2_quota_is_read_from_the_process_cgroup(tmp_path):
 
 
 def test_a_cgroup_v1_quota_is_read_from_the_cpu_controller(tmp_path):
-    from mcrt.core.timing import cgroup_cpu_quota
+    from mcrt.core.machine import cgroup_cpu_quota
 
     proc, root = tmp_path / "cgroup", tmp_path / "fs"
     _files(tmp_path, {"cgroup": "12:memory:/docker/abc\n4:cpu,cpuacct:/docker/abc\n0::/\n",
@@ -104,7 +104,7 @@ def test_a_cgroup_v1_quota_is_read_from_the_cpu_controller(tmp_path):
 
 
 def test_missing_or_unreadable_cgroup_files_mean_no_quota(tmp_path):
-    from mcrt.core.timing import cgroup_cpu_quota, machine
+    from mcrt.core.machine import cgroup_cpu_quota, machine
 
     assert cgroup_cpu_quota(str(tmp_path / "none"), str(tmp_path / "none")) is None
     _files(tmp_path, {"cgroup": "0::/a\n3:cpu:/a\nnonsense\n"})

@@ -21,10 +21,11 @@ import numpy as np
 from ... import __version__
 from ...core.executor import Executor, cluster_status
 from ...core.job import Interrupted, Job, run_job
+from ...core.machine import machine
 from ...core.progress import Progress
 from ...core.provenance import source_digest
 from ...core.stats import PixelStats
-from ...core.timing import Sample, machine, round_orders
+from ...core.timing import Sample, round_orders
 from ...errors import McrtError
 from ..filter_noise import filter_correlation, variance_factor
 from ..metrics import REL_MSE_EPSILON, reference_noise_floor
