@@ -168,6 +168,34 @@ def png_text_of(path: Path) -> dict[str, str]:
         return dict(image.text)  # type: ignore[attr-defined]  (PNG images have .text)
 
 
+def html_command_of(path: Path) -> str | None:
+    """The command an HTML report says made it (the ``<code>`` of its element with
+    ``id="command"``), as the standard library's HTML parser reads it."""
+    from html.parser import HTMLParser
+
+    class Finder(HTMLParser):
+        depth = 0  # inside the element with id="command": the open tags' count
+        code = False
+        command: str | None = None
+
+        def handle_starttag(self, tag, attrs):
+            if self.depth or ("id", "command") in attrs:
+                self.depth += 1
+            self.code = self.code or (self.depth > 0 and tag == "code")
+
+        def handle_endtag(self, tag):
+            self.depth = max(self.depth - 1, 0)
+            self.code = self.code and tag != "code"
+
+        def handle_data(self, data):
+            if self.code:
+                self.command = (self.command or "") + data
+
+    finder = Finder()
+    finder.feed(path.read_text(encoding="utf-8"))
+    return finder.command
+
+
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     """``mcrt ARGV`` in-process: (exit code, stdout, stderr); argparse exits included."""
     try:

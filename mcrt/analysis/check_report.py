@@ -8,7 +8,8 @@
 * ``radial.png``: the radially averaged power spectrum (white noise = 1);
 * ``results.json``: sampler, parameters, seed, budget and every check with its
   numbers (non-finite numbers as ``null``);
-* ``report.html``: the table and the figures (linked, next to it).
+* ``report.html``: the command and software, the table and the figures (linked,
+  next to it).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 
 from ..core.atomic import atomic_path
 from ..core.jsonfile import write_json
+from ..core.provenance import html_note
 from ..samplers import registry
 from .check import CheckResult, budget_for
 
@@ -167,6 +169,7 @@ def render_html(data: dict[str, Any], figures: list[str]) -> str:
             f"<p>{e(data['summary'])} ({e(data['kind'])}); claims: "
             f"{e(', '.join(data['claims']) or 'none')}; parameters: {e(params)}; seed "
             f"{data['seed']}{', quick budget' if data['quick'] else ''}{spp}.</p>"
+            f"{html_note(data)}"
             f"<p><b>{e(data['verdict'])}</b></p><table><tr><th>property</th><th>result</th>"
             f"<th>figure</th><th>detail</th></tr>{rows}</table>{images}"
             f"<p><small>Every check uses fixed seeds; the margins are documented in "

@@ -23,7 +23,7 @@
   sampler with its fitted slope (the cost curve of accuracy);
 * ``images_<scene>.png`` - the image grid of each scene;
 * ``results.csv`` - one row per (scene, sampler, spp) cell (means over seeds
-  and their spread);
+  and their spread; the study's command on every row);
 * ``results.json`` - the configuration, environment, references, every cell
   with its per-seed values, and the fits (NaN written as ``null``).
 
@@ -53,7 +53,7 @@ from typing import Any
 
 from ..core.atomic import atomic_path, ensure_writable_dir
 from ..core.jsonfile import json_safe, write_json
-from ..core.provenance import png_text
+from ..core.provenance import COMMAND, csv_values, html_note, png_text
 from .plots import save_figure
 from .report_tables import (
     cell_header,
@@ -150,7 +150,9 @@ def csv_rows(result: StudyResult) -> list[list[str]]:
     if result.partial:  # study order, done cells first would mislead: sort like the config
         order = {key: i for i, key in enumerate(cell_keys(result.config))}
         rows.sort(key=lambda r: order[(r["scene"], r["sampler"], r["spp_requested"])])
-    return [[_csv_value(row[c]) if c in row else "" for c in CSV_COLUMNS] for row in rows]
+    made = csv_values({COMMAND: result.command})  # how the file was made: on every row
+    return [[_csv_value(row[c]) if c in row else "" for c in CSV_COLUMNS]
+            for row in ({**r, **made} for r in rows)]
 
 
 def write_results_csv(result: StudyResult, path: str | os.PathLike[str]) -> None:
@@ -240,6 +242,7 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
         f"{html.escape(str(env['platform']))}, "
         f"{env['cpus']} CPUs, Mitsuba {env['mitsuba']}, Dr.Jit {env['drjit']}, "
         f"{html.escape(env['variant'])}, mcrt {env['mcrt']}, started {env['started']}.</p>")
+    parts.append(html_note({COMMAND: result.command}))
     if result.resumed_cells and not result.partial:
         parts.append(f"<p class='note'>{result.resumed_cells} of {config.cells} cells were "
                      "measured by an earlier, interrupted run and taken from its saved state "

@@ -20,6 +20,7 @@ import numpy as np
 from ..analysis import peers
 from ..core.atomic import atomic_path
 from ..core.jsonfile import write_json
+from ..core.provenance import csv_values
 from ..core.sampling import mitsuba_message, quiet_sampler_warnings
 from ..errors import McrtError
 from ..samplers.points import point_sets
@@ -147,10 +148,11 @@ def run(args: argparse.Namespace, samplers: list[str], out: Path, record: dict[s
         rows = run_funcsamp(args, samplers, out)
     stem = out / f"integrate_{args.integrand}"
     fields = sorted({key for row in rows for key in row})
+    made = csv_values(record)  # how the file was made: on every row
     with atomic_path(stem.with_suffix(".csv")) as tmp, open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields or ["suite"])
+        writer = csv.DictWriter(f, fieldnames=[*(fields or ["suite"]), *made])
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows({**row, **made} for row in rows)
     write_json(stem.with_suffix(".json"), {"suite": args.integrand, "seed": args.seed,
                                            "rows": rows, **record})
     print(f"wrote {stem.name}.csv and .json to {out}")

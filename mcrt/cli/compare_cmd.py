@@ -65,8 +65,15 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         epilog=examples("mcrt compare configs/quick.toml",
                         "mcrt compare configs/quick.toml --check",
                         "mcrt compare configs/full.toml -o out/full -q",
-                        "mcrt compare configs/full.toml --cluster local:2"))
-    p.add_argument("config", metavar="CONFIG.toml", help="study configuration (TOML)")
+                        "mcrt compare configs/full.toml --cluster local:2",
+                        "mcrt compare --from out/compare/quick/results.csv"))
+    p.add_argument("config", metavar="CONFIG.toml", nargs="?",
+                   help="study configuration (TOML)")
+    p.add_argument("--from", dest="from_csv", metavar="results.csv",
+                   help="run again the study whose results.csv this is (the command on its "
+                        "rows) into -o DIR (default: its folder + _again, beside it), and say "
+                        "whether every cell's numbers are the same bit for bit, times aside "
+                        "(exit status 1 if not)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="report directory (default: out/compare/<study name>)")
     p.add_argument("--check", action="store_true",
@@ -108,6 +115,12 @@ def _study_command(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.from_csv is not None:
+        from .reproduce_study import run_from
+
+        return run_from(args)
+    if args.config is None:
+        raise McrtError("give the study's configuration (CONFIG.toml), or --from results.csv")
     config = load_config(args.config)  # every input error surfaces here, before rendering
     if args.check:
         print(f"{args.config}: OK ({len(config.scenes)} scenes, {len(config.samplers)} samplers, "

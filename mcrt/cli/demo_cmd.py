@@ -14,6 +14,7 @@ from ..core.provenance import (
     COMMAND,
     absolute,
     command_text,
+    csv_values,
     png_text,
     scene_facts,
     software,
@@ -87,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
                               * (_common.image_bytes(1, 3) + 2 * 4), "the images")
 
     _common.note_first_run()
+    record = _common.recorded(args, "--samplers", ",".join(samplers), "--scenes",
+                              absolute(scene_dir), "--reference-factor", args.reference_factor,
+                              "--rounds", args.rounds)
     rows = []
     for stem, scene in scenes.items():
         spp = scene.sensors()[0].sampler().sample_count()
@@ -129,12 +133,13 @@ def run(args: argparse.Namespace) -> int:
                   f"+- {summary.spread:.2f}  relMSE {error:.3e}{doubt}", flush=True)
         sheet.append((f"reference ({reference.spp} spp)", reference.rgb))
         write_contact_sheet(out / f"{stem}_comparison.png", sheet, columns=3,
-                            text=png_text({}))
+                            text=png_text(record))
 
+    made = csv_values(record)  # how the file was made: on every row
     with atomic_path(out / "results.csv") as tmp, open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=[*rows[0], *made])
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows({**row, **made} for row in rows)
     print(f"times: median of {args.rounds} interleaved rounds +- robust spread, after an untimed "
           f"warm-up render per sampler; wrote "
           f"images, {', '.join(f'{s}_comparison.png' for s in scenes)} and results.csv to {out}")

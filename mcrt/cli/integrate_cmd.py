@@ -16,7 +16,7 @@ from ..analysis.integrate import (
 from ..core.atomic import atomic_path
 from ..core.jsonfile import write_json
 from ..core.progress import Progress
-from ..core.provenance import png_text
+from ..core.provenance import csv_values, png_text
 from ..core.sampling import check_sampler_name
 from ..errors import McrtError
 from . import SUMMARIES, _common, _integrate_peers
@@ -207,10 +207,11 @@ def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) 
                          "mse": p.summary.mse, "rmse": p.summary.rmse,
                          "se_log_mse": p.summary.se_log, "bias": p.summary.bias,
                          "seconds": p.seconds, "ns_per_sample": p.ns_per_sample})
+    made = csv_values(record)  # how the file was made: on every row
     with atomic_path(stem.with_suffix(".csv")) as tmp, open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["sampler"])
+        writer = csv.DictWriter(f, fieldnames=[*(rows[0] if rows else ["sampler"]), *made])
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows({**row, **made} for row in rows)
     slopes = {}
     for name, conv in results.items():
         fit = conv.fit()

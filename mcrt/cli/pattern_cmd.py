@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import logging
 import math
 import re
@@ -13,7 +14,7 @@ import numpy as np
 from ..analysis import patterns
 from ..core.atomic import atomic_path
 from ..core.jsonfile import write_json
-from ..core.provenance import png_text
+from ..core.provenance import csv_values, png_text
 from ..core.sampling import check_sampler_name, make_sampler, quiet_sampler_warnings
 from ..errors import McrtError
 from ..samplers.base import is_mcrt_sampler
@@ -205,12 +206,13 @@ def _write_outputs(out: Path, name: str, points: np.ndarray, report: patterns.Pa
     plots.save_figure(fig, out / "overview.png", text=text)
 
     r = report.radial
-    lines = ["radius,frequency,power,anisotropy_db,count"]
-    lines += [f"{int(k)},{f:.6g},{p:.6g},{a:.6g},{int(c)}"
-              for k, f, p, a, c in zip(r.radius, r.frequency, r.power, r.anisotropy_db, r.count,
-                                       strict=True)]
-    with atomic_path(out / "radial.csv") as tmp:
-        Path(tmp).write_text("\n".join(lines) + "\n")
+    made = csv_values(summary)  # how the file was made: on every row
+    with atomic_path(out / "radial.csv") as tmp, open(tmp, "w", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(["radius", "frequency", "power", "anisotropy_db", "count", *made])
+        writer.writerows([int(k), f"{f:.6g}", f"{p:.6g}", f"{a:.6g}", int(c), *made.values()]
+                         for k, f, p, a, c in zip(r.radius, r.frequency, r.power,
+                                                  r.anisotropy_db, r.count, strict=True))
     write_json(out / "summary.json", summary)
 
 

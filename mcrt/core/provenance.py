@@ -21,6 +21,11 @@ keys in its file's header, beside its own settings:
 ``mcrt render --from FILE.exr`` runs a file's ``command`` again and says
 whether the pixels came out the same (:mod:`mcrt.cli.reproduce`), and first
 notes a file written by other software (:func:`software_changes`).
+
+The other formats carry the ``command`` where each has room for it: a PNG's text
+chunks (:func:`png_text`), a JSON file's key, a CSV's last columns on every row
+(:data:`CSV_COLUMNS`; ``mcrt compare --from results.csv`` runs a study again), an
+HTML report's note (:func:`html_note`).
 """
 
 from __future__ import annotations
@@ -69,18 +74,47 @@ def source_digest() -> str:
 SOFTWARE_KEYS = ("mcrt_source", "mitsuba_version", "drjit_version")
 
 
+def software_text() -> str:
+    """The software of this process in one line: ``mcrt 0.1.0 (source 1a2b...),
+    Mitsuba 3.9.1 (llvm_ad_rgb), Dr.Jit 1.5.0`` (a PNG's ``Software``, a CSV's
+    ``software`` column, an HTML report's note)."""
+    now = software()
+    return (f"mcrt {now['mcrt_version']} (source {now['mcrt_source']}), "
+            f"Mitsuba {now['mitsuba_version']} ({now['variant']}), "
+            f"Dr.Jit {now['drjit_version']}")
+
+
 def png_text(record: dict[str, Any]) -> dict[str, str]:
     """The text chunks of a PNG mcrt writes: ``command`` (``record``'s, if it has
-    one: what makes the file again) and ``Software`` (mcrt, its source digest,
-    Mitsuba, Dr.Jit and the variant), so a picture pasted elsewhere still says
-    how it was made (``PIL.Image.open(path).text``)."""
-    now = software()
-    text = {"Software": f"mcrt {now['mcrt_version']} (source {now['mcrt_source']}), "
-                        f"Mitsuba {now['mitsuba_version']} ({now['variant']}), "
-                        f"Dr.Jit {now['drjit_version']}"}
+    one: what makes the file again) and ``Software`` (:func:`software_text`), so a
+    picture pasted elsewhere still says how it was made
+    (``PIL.Image.open(path).text``)."""
+    text = {"Software": software_text()}
     if record.get(COMMAND):
         text[COMMAND] = str(record[COMMAND])
     return text
+
+
+#: The last columns of every CSV mcrt writes, the same on every row: a CSV has no
+#: header for them, and a column stays with the numbers wherever they are copied
+#: (``csv.DictReader`` and pandas read it like any other).
+CSV_COLUMNS = (COMMAND, "software")
+
+
+def csv_values(record: dict[str, Any]) -> dict[str, str]:
+    """The values of :data:`CSV_COLUMNS`: ``record``'s command ("" without one)
+    and :func:`software_text`."""
+    return {COMMAND: str(record.get(COMMAND) or ""), "software": software_text()}
+
+
+def html_note(record: dict[str, Any]) -> str:
+    """The paragraph of an HTML report that says how it was made: ``record``'s
+    command (in ``<code>``, the paragraph's id ``command``) and the software."""
+    import html
+
+    made = (f"Made by <code>{html.escape(str(record[COMMAND]))}</code> with "
+            if record.get(COMMAND) else "Made with ")
+    return f"<p class='note' id='{COMMAND}'>{made}{html.escape(software_text())}.</p>"
 
 
 def software_changes(header: dict[str, Any]) -> list[str]:
@@ -190,5 +224,6 @@ def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
     return words[1:]
 
 
-__all__ = ["COMMAND", "FILE_PARAMS", "absolute", "command_text", "command_words", "define_word",
-           "define_words", "located", "param_word", "plugin_files", "scene_facts", "software"]
+__all__ = ["COMMAND", "CSV_COLUMNS", "FILE_PARAMS", "absolute", "command_text", "command_words",
+           "csv_values", "define_word", "define_words", "html_note", "located", "param_word",
+           "plugin_files", "png_text", "scene_facts", "software", "software_text"]

@@ -235,7 +235,8 @@ def test_cell_and_fit_fields_are_declared_once():
     assert len(names) == len(CELL_FIELDS) and len(FIT_KEYS) == len(set(FIT_KEYS))
     assert report.CSV_COLUMNS == CSV_COLUMNS and set(CSV_COLUMNS) <= names
     assert [c for c in CSV_COLUMNS if c not in CELL_KEYS] == ["status", "seeds_done",
-                                                              "seeds_total"]
+                                                              "seeds_total", "command",
+                                                              "software"]
     assert "per_seed" in CELL_KEYS and "per_seed" not in CSV_COLUMNS
     # Every defined term names declared fields ("aliasing_*_z": both z-scores).
     keys = CELL_KEYS + FIT_KEYS

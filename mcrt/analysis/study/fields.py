@@ -7,7 +7,8 @@ one of :data:`FIT_FIELDS`. Everything else is derived from these tuples:
 * the keys (and their order) of every cell and fit the study produces
   (:func:`record` builds them and refuses a key that is missing or not
   declared) and so of ``results.json`` and the resume state;
-* the columns of ``results.csv`` (:data:`CSV_COLUMNS`);
+* the columns of ``results.csv`` (:data:`CSV_COLUMNS`), and those a run of the
+  same study repeats (:data:`REPEATED_COLUMNS`: not timed);
 * the report's definitions (:data:`DEFINITIONS`), its table of cells
   (:data:`CELL_COLUMNS`) and the slope columns of its summary table
   (:data:`FIT_COLUMNS`).
@@ -28,6 +29,7 @@ from typing import Any, Literal, TypedDict, cast
 
 import numpy as np
 
+from ...core.provenance import CSV_COLUMNS as CSV_PROVENANCE
 from ..aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, MIN_SIZE, UNMEASURED, Z_THRESHOLD
 from ..metrics import REL_MSE_EPSILON
 
@@ -63,6 +65,8 @@ class Field:
     csv: bool = True
     #: its column in the report's table, if any
     column: Column | None = None
+    #: it depends on the renders' times (no two runs give the same value)
+    timed: bool = False
 
 
 CELL_FIELDS: tuple[Field, ...] = (
@@ -81,23 +85,23 @@ CELL_FIELDS: tuple[Field, ...] = (
                      "interleaved in shuffled rounds after a warm-up (see time_protocol); "
                      "seconds_low/high: its 95% interval (Student t on the log, se = "
                      "sqrt(pi/2) sd(log t) / sqrt(n))",
-          column=Column("time (ms) [95%]", "interval", scale=1e3)),
-    Field("seconds_low"),
-    Field("seconds_high"),
+          column=Column("time (ms) [95%]", "interval", scale=1e3), timed=True),
+    Field("seconds_low", timed=True),
+    Field("seconds_high", timed=True),
     Field("seconds_sd", "robust spread of the timed renders: 1.4826 x their median absolute "
-                        "deviation (s)"),
-    Field("seconds_min"),
+                        "deviation (s)", timed=True),
+    Field("seconds_min", timed=True),
     Field("cpu_seconds", "median process CPU time of the timed renders (all threads; "
-                         "above the wall time when rendering uses several cores)"),
-    Field("times", "wall time of every timed render, in round order (s)"),
-    Field("cpu_times"),
+                         "above the wall time when rendering uses several cores)", timed=True),
+    Field("times", "wall time of every timed render, in round order (s)", timed=True),
+    Field("cpu_times", timed=True),
     Field("time_others", "other runnable processes when each timed render started "
-                         "(procs_running of /proc/stat; empty where unknown)"),
+                         "(procs_running of /proc/stat; empty where unknown)", timed=True),
     Field("time_problems", "what makes the cell's timing doubtful: a spread over 10% of the "
                            "median, outliers (> 3.5 robust sd) in over a quarter of its "
                            "renders, other processes running at over a quarter of them; "
                            "empty: none",
-          column=Column("timing", "text")),
+          column=Column("timing", "text"), timed=True),
     Field("mse", "mean over pixels and channels of (render - reference)^2, averaged over seeds",
           column=Column("MSE", "sd")),
     Field("mse_sd"),
@@ -120,20 +124,20 @@ CELL_FIELDS: tuple[Field, ...] = (
                         "interval (delta method on the log: the seeds' MSE spread and the "
                         "time's standard error, Student t at Welch-Satterthwaite degrees of "
                         "freedom)",
-          column=Column("efficiency [95%]", "interval")),
-    Field("efficiency_low"),
-    Field("efficiency_high"),
+          column=Column("efficiency [95%]", "interval"), timed=True),
+    Field("efficiency_low", timed=True),
+    Field("efficiency_high", timed=True),
     Field("efficiency_ratio", "efficiency / the baseline sampler's at the same spp, with a "
                               "95% interval (the two MSEs' spreads and the paired time ratio "
                               "of renders timed in the same rounds); its inverse is the time "
                               "needed for the baseline's error relative to the baseline's; an "
                               "interval containing 1: no significant difference",
-          column=Column("eff. ratio [95%]", "interval")),
-    Field("efficiency_ratio_low"),
-    Field("efficiency_ratio_high"),
+          column=Column("eff. ratio [95%]", "interval"), timed=True),
+    Field("efficiency_ratio_low", timed=True),
+    Field("efficiency_ratio_high", timed=True),
     Field("efficiency_samples", "1 / (mse_excess x seconds_per_sample x pixels x spp): the "
                                 "efficiency on the per-sample cost alone (the sampler's fixed "
-                                "per-render cost removed, see the fits)"),
+                                "per-render cost removed, see the fits)", timed=True),
     Field("variance", "mean over pixels and channels of the per-pixel variance of the pixel "
                       "estimate across seeds (Welford, float64; 0 for a deterministic sampler)",
           column=Column("variance")),
@@ -177,6 +181,9 @@ CELL_FIELDS: tuple[Field, ...] = (
     Field("status", json=False),
     Field("seeds_done", json=False),
     Field("seeds_total", json=False),
+    # How the file was made, the same on every row (results.json's command):
+    # :data:`mcrt.core.provenance.CSV_COLUMNS`.
+    *(Field(name, json=False) for name in CSV_PROVENANCE),
 )
 
 FIT_FIELDS: tuple[Field, ...] = (
@@ -321,6 +328,10 @@ CELL_KEYS = json_keys(CELL_FIELDS)
 FIT_KEYS = json_keys(FIT_FIELDS)
 #: Columns of results.csv, in order.
 CSV_COLUMNS = tuple(f.name for f in CELL_FIELDS if f.csv)
+#: Columns of results.csv that a run of the same study writes again as they are:
+#: neither timed nor how the file was made (``compare --from``).
+REPEATED_COLUMNS = tuple(f.name for f in CELL_FIELDS
+                         if f.csv and not f.timed and f.name not in CSV_PROVENANCE)
 #: The report's definitions: term -> text, cells' then fits'.
 DEFINITIONS = {f.term or f.name: f.definition for f in CELL_FIELDS + FIT_FIELDS if f.definition}
 #: Columns of the report's table of cells.
