@@ -3,8 +3,9 @@
 ``write_report(directory, ...)`` writes, each file atomically:
 
 * ``points.png``: the points of two pixels (film dimension, the spectrum check's N);
-* ``mse.png``: MSE against N per integrand with the fitted power law and
-  independent sampling's N^-1 through the first point (the rate check);
+* ``mse.png``: MSE against N per integrand (bars: its 95% intervals) with the
+  fitted power law and independent sampling's N^-1 through the first point (the
+  rate check);
 * ``radial.png``: the radially averaged power spectrum (white noise = 1);
 * ``results.json``: sampler, parameters, seed, budget and every check with its
   numbers (non-finite numbers as ``null``);
@@ -128,8 +129,8 @@ def _figures(out: Path, name: str, results: list[CheckResult],
             fit = conv.fit()
             n = np.array([p.n for p in conv.points], dtype=np.float64)
             mse = np.array([p.summary.mse for p in conv.points])
-            se = np.array([p.summary.se_log for p in conv.points])
-            plots.plot_convergence(ax, [(f"{name} (slope {fit.slope:+.2f})", n, mse, se)],
+            low, high = np.array([p.summary.interval() for p in conv.points]).T
+            plots.plot_convergence(ax, [(f"{name} (slope {fit.slope:+.2f})", n, mse, low, high)],
                                    reference_slopes=(-1.0,), title=f"MSE, {integrand}")
             if math.isfinite(fit.slope):
                 ax.plot(n, [fit.mse_at(x) for x in n], color="tab:red", lw=0.8, ls="--")

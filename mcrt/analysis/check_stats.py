@@ -34,7 +34,8 @@
   f(call 3) f(call 4) (m = 8). The claim lets off the film alone:
   a sampler biased in the other dimensions still fails.
 * **mse_rate**: MSE against N (run_convergence, fresh seeds per N), slope by
-  fit_slope (se scaled by sqrt(chi2/dof)): pass if ``slope <= -1 + 0.1 + 3 se``
+  fit_slope (se: each point's ln MSE variance at least Gaussian errors', the
+  whole scaled by sqrt(chi2/dof) > 1): pass if ``slope <= -1 + 0.1 + 3 se``
   on every integrand (independent points' rate), and ``<= -1.3 + 3 se`` on the
   disk for a stratified / net / min_distance claim (the variance suite's bound
   on the N^-1.5 of edges [Mitchell 1996]). A sampler that serves only some
@@ -216,7 +217,7 @@ def check_mse_rate(subject: Subject, budget: Budget, seed: int = 0) -> CheckResu
         limit = -1.0 + RATE_MARGIN + RATE_SIGMAS * se
         if name == "disk" and strict:
             limit = min(limit, STRATIFIED_DISK_SLOPE + RATE_SIGMAS * se)
-        parts.append(f"{name} {fit.slope:+.2f} +- {se:.2f} (<= {limit:+.2f})")
+        parts.append(f"{name} {fit.slope:+.2f} (se {se:.2f}, <= {limit:+.2f})")
         values[name] = {"slope": fit.slope, "stderr": se, "limit": limit}
         if not fit.slope <= limit:
             failed.append(name)
@@ -234,7 +235,7 @@ def _relative(name: str, samples: np.ndarray, expected: float, what: str,
     se = float(np.std(samples, ddof=1)) / math.sqrt(len(samples)) / expected
     limit = 1.0 + PATTERN_MARGIN + PATTERN_SIGMAS * se
     return CheckResult(name, ratio <= limit, f"{ratio:.3g} x iid",
-                       f"{what} {ratio:.3g} +- {se:.2g} x independent points' (<= {limit:.3g})",
+                       f"{what} {ratio:.3g} x independent points' (se {se:.2g}, <= {limit:.3g})",
                        values={"ratio": ratio, "stderr": se, "limit": limit}, data=data)
 
 

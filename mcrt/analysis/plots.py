@@ -136,21 +136,24 @@ def plot_anisotropy(ax: Axes, radial: RadialSpectrum, label: str | None = None,
         ax.set_title(title, fontsize=9)
 
 
-def plot_convergence(ax: Axes, series: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
+def plot_convergence(ax: Axes,
+                     series: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
                      reference_slopes: Sequence[float] = (-1.0, -1.5, -2.0),
-                     ylabel: str = "MSE", title: str = "") -> None:
+                     ylabel: str = "MSE (bars: 95% interval)", title: str = "") -> None:
     """Log-log MSE against N for several samplers.
 
-    ``series``: ``(label, n, mse, se_log)`` per sampler; error bars span
-    ``+-2 se`` of ``ln MSE``. Dashed guide lines with ``reference_slopes``
+    ``series``: ``(label, n, mse, low, high)`` per sampler; error bars span
+    ``low .. high``, the MSE's 95% interval
+    (:meth:`mcrt.analysis.integrate.MSESummary.interval`: chi-square, skewed
+    upwards like the MSE). Dashed guide lines with ``reference_slopes``
     start at the first series' first point.
     """
-    for label, n, mse, se in series:
-        n, mse, se = (np.asarray(a, dtype=np.float64) for a in (n, mse, se))
+    for label, n, mse, low, high in series:
+        n, mse, low, high = (np.asarray(a, dtype=np.float64) for a in (n, mse, low, high))
         keep = mse > 0
-        lower = mse[keep] * (1.0 - np.exp(-2.0 * se[keep]))
-        upper = mse[keep] * (np.exp(2.0 * se[keep]) - 1.0)
-        ax.errorbar(n[keep], mse[keep], yerr=(lower, upper), marker="o", ms=3, lw=1.2,
+        below = np.nan_to_num(np.clip(mse[keep] - low[keep], 0.0, None))
+        above = np.nan_to_num(np.clip(high[keep] - mse[keep], 0.0, None))
+        ax.errorbar(n[keep], mse[keep], yerr=(below, above), marker="o", ms=3, lw=1.2,
                     capsize=2, label=label)
     if series:
         n0, m0 = float(series[0][1][0]), float(series[0][2][0])

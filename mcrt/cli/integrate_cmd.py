@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 from pathlib import Path
 
 from ..analysis.integrate import (
@@ -159,24 +160,32 @@ def _check_params(sampler: str, counts: list[int], params: dict) -> None:
     raise McrtError(f"-P: {first}")
 
 
+def _interval_text(low: float, high: float, spec: str) -> str:
+    """``[low, high]``; ``exact`` for a zero-width interval (a deterministic estimator)."""
+    return "exact" if low == high else f"[{low:{spec}}, {high:{spec}}]"
+
+
 def _print_table(integrand, results) -> None:
     print(f"integrand {integrand.name}: {integrand.description}; exact {integrand.exact:.12g}")
     print("estimate and |error|: pixel 0 (one run of the estimator); RMSE over all trials "
-          "(+- relative standard error of the MSE)")
+          "with its 95% interval (chi-square on min(2 / se_log^2, trials) degrees of freedom)")
     header = (f"{'sampler':13s} {'N':>6s} {'trials':>6s} {'estimate':>12s} {'|error|':>10s} "
-              f"{'RMSE':>10s} {'+-MSE':>6s} {'time ms':>8s} {'ns/sample':>9s}")
+              f"{'RMSE':>10s} {'RMSE 95% interval':>20s} {'time ms':>8s} {'ns/sample':>9s}")
     print(header)
     for name, conv in results.items():
         for p in conv.points:
             err = abs(float(p.estimates[0]) - p.exact)
+            low, high = p.summary.interval()
             print(f"{name:13s} {p.n:6d} {p.trials:6d} {float(p.estimates[0]):12.8f} {err:10.3e} "
-                  f"{p.summary.rmse:10.3e} {100 * p.summary.se_log:5.1f}% "
+                  f"{p.summary.rmse:10.3e} "
+                  f"{_interval_text(math.sqrt(low), math.sqrt(high), '.2e'):>20s} "
                   f"{1e3 * p.seconds:8.2f} {p.ns_per_sample:9.2f}")
         for n, reason in conv.skipped:
             print(f"{name:13s} {n:6d}  skipped: {reason}")
     print("fitted slope of ln MSE against ln N (weighted least squares; the RMSE slope is half "
-          "of it); +- is its standard error, scaled by sqrt(chi2/dof) when the MSE scatters "
-          "about a power law more than its own errors allow (chi2/dof > 1)")
+          "of it) with its 95% interval: normal, or Student t on points - 2 degrees of freedom "
+          "and widened by sqrt(chi2/dof) when the MSE scatters about a power law more than its "
+          "own errors allow (chi2/dof > 1)")
     for name, conv in results.items():
         fit = conv.fit()
         if fit.points < 2:
@@ -185,11 +194,14 @@ def _print_table(integrand, results) -> None:
         expected = EXPECTED_SLOPES.get(name, {}).get(integrand.name)
         note = f"  published rate {expected:g}" if expected is not None else ""
         if conv.deterministic:
-            note += "  (deterministic: every trial gives the same estimate; +- is the scatter)"
+            note += ("  (deterministic: every trial gives the same estimate; the interval is "
+                     "the scatter about the line)")
             chi2 = ""
         else:
             chi2 = f"  chi2/dof {fit.chi2_dof:5.1f}" if fit.chi2_dof == fit.chi2_dof else ""
-        print(f"  {name:13s} MSE slope {fit.slope:+.3f} +- {fit.stderr_scaled:.3f}{chi2}{note}")
+        low, high = fit.interval()
+        print(f"  {name:13s} MSE slope {fit.slope:+.3f} {_interval_text(low, high, '+.3f')}"
+              f"{chi2}{note}")
 
 
 def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) -> None:
@@ -204,7 +216,8 @@ def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) 
             rows.append({"sampler": name, "n_requested": p.n_requested, "n": p.n,
                          "trials": p.trials, "estimate_pixel0": float(p.estimates[0]),
                          "mean_estimate": float(p.estimates.mean()), "exact": p.exact,
-                         "mse": p.summary.mse, "rmse": p.summary.rmse,
+                         "mse": p.summary.mse, "mse_low": p.summary.interval()[0],
+                         "mse_high": p.summary.interval()[1], "rmse": p.summary.rmse,
                          "se_log_mse": p.summary.se_log, "bias": p.summary.bias,
                          "seconds": p.seconds, "ns_per_sample": p.ns_per_sample})
     made = csv_values(record)  # how the file was made: on every row
@@ -215,7 +228,9 @@ def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) 
     slopes = {}
     for name, conv in results.items():
         fit = conv.fit()
-        slopes[name] = {"slope": fit.slope, "stderr": fit.stderr,
+        low, high = fit.interval()
+        slopes[name] = {"slope": fit.slope, "slope_low": low, "slope_high": high,
+                        "stderr": fit.stderr,
                         "stderr_scaled": fit.stderr_scaled, "points": fit.points,
                         "chi2_dof": fit.chi2_dof, "deterministic": conv.deterministic,
                         "skipped": [{"n": n, "reason": r} for n, r in conv.skipped]}
@@ -226,7 +241,7 @@ def _write_outputs(out: Path, args, integrand, results, record: dict[str, str]) 
     fig = plots.new_figure(6.0, 4.5)
     series = [(f"{name} ({conv.fit().slope:+.2f})", np.array([p.n for p in conv.points]),
                np.array([p.summary.mse for p in conv.points]),
-               np.array([p.summary.se_log for p in conv.points]))
+               *np.array([p.summary.interval() for p in conv.points]).T)
               for name, conv in results.items() if conv.points]
     plots.plot_convergence(fig.add_subplot(), series,
                            title=f"MSE of the {integrand.name} estimate (slope in legend)")

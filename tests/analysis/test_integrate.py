@@ -195,8 +195,12 @@ def test_integrate_command(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((out / "integrate_pi.json").read_text())
     assert set(summary["slopes"]) == {"independent", "orthogonal", "uniform_grid"}
+    slope = summary["slopes"]["independent"]
+    assert slope["slope_low"] < slope["slope"] < slope["slope_high"]
     rows = (out / "integrate_pi.csv").read_text().splitlines()
     assert rows[0].startswith("sampler,n_requested,n,trials") and len(rows) == 1 + 3 * 3
+    assert "mse_low" in rows[0] and "mse_high" in rows[0]
+    assert "RMSE 95% interval" in stdout and "exact" in stdout  # uniform_grid's MSE
     assert not list(out.glob(".*.tmp"))
 
 
