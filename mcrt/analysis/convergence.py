@@ -141,6 +141,15 @@ def excess_mse(per_seed_mse: list[float], floor: float) -> LogEstimate:
     return LogEstimate(excess, float(a.std(ddof=1)) / math.sqrt(k) / excess, k - 1.0)
 
 
+def recorded_excess_mse(excess: float, sd: float, seeds: int) -> LogEstimate:
+    """:func:`excess_mse` from a cell's recorded fields: its ``mse_excess``, the
+    seeds' ``mse_sd`` (``ddof = 1``) and their number K (the study figures' bars)."""
+    if not (seeds > 1 and math.isfinite(excess) and excess > 0 and math.isfinite(sd)):
+        return LogEstimate(excess if math.isfinite(excess) and excess > 0 else math.nan,
+                           math.nan, math.nan)
+    return LogEstimate(excess, sd / math.sqrt(seeds) / excess, seeds - 1.0)
+
+
 def typical_time(times: list[float]) -> LogEstimate:
     """The median of a case's timed runs with the standard error of its log."""
     from .significance import median_and_se_log
@@ -179,4 +188,5 @@ def efficiency_ratio(mse_a: LogEstimate, mse_b: LogEstimate, time_ratio: LogEsti
 
 
 __all__ = ["NONE", "LogEstimate", "LogLogFit", "efficiency", "efficiency_estimate",
-           "efficiency_ratio", "excess_mse", "fit_loglog", "paired_time_ratio", "typical_time"]
+           "efficiency_ratio", "excess_mse", "fit_loglog", "paired_time_ratio",
+           "recorded_excess_mse", "typical_time"]

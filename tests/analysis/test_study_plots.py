@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from mcrt.analysis import plots
+from mcrt.analysis.significance import log_interval
 from mcrt.analysis.study import CellImages, CellRenders, ReferenceInfo, StudyResult, parse_config
 from mcrt.analysis.study import figures as study_figures
 
@@ -364,9 +365,9 @@ def _errorbars(ax) -> list[Any]:
 
 @pytest.mark.parametrize("axis", ["seconds", "spp"])
 def test_error_bars(flagged, axis):
-    """Vertical bars of +-1 standard error of the mean MSE (mse_sd / sqrt(K),
-    the lower one cut at 95% of the value) on both plots; horizontal bars over
-    the 95% time interval on the time plot only; one container per sampler."""
+    """Vertical bars over the 95% interval of the excess MSE (the efficiency's:
+    mse_sd / sqrt(K) on the log scale, t on K - 1 df) on both plots; horizontal bars
+    over the 95% time interval on the time plot only; one container per sampler."""
     fig = study_figures.error_figure(flagged, axis)
     k = len(flagged.config.seeds)
     for ax, scene in zip(fig.axes, flagged.scenes, strict=True):
@@ -383,10 +384,9 @@ def test_error_bars(flagged, axis):
             horizontal = [s for s in segments if s[0][1] == s[1][1] and s[0][0] != s[1][0]]
             assert len(vertical) == len(cells)
             for ((x, y0), (_, y1)), cell in zip(vertical, cells, strict=True):
-                se = cell["mse_sd"] / math.sqrt(k)
-                y = cell["mse_excess"]
+                se_log = cell["mse_sd"] / math.sqrt(k) / cell["mse_excess"]
                 assert x == pytest.approx(cell[axis])
-                assert (y0, y1) == pytest.approx((y - min(se, 0.95 * y), y + se))
+                assert (y0, y1) == pytest.approx(log_interval(cell["mse_excess"], se_log, k - 1))
                 checked += 1
             if axis == "seconds":
                 assert len(horizontal) == len(cells)

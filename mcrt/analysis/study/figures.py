@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..convergence import recorded_excess_mse
 from ..plots import new_figure
 
 if TYPE_CHECKING:
@@ -175,8 +176,8 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
     """Excess MSE of every sampler of ``scene`` against ``axis`` ("spp" or "seconds").
 
     Each point is a cell: its mean excess MSE over the K seeds with a vertical
-    bar of +-1 standard error of that mean (``mse_sd / sqrt(K)``, on both
-    axes' plots; the lower bar is cut at 95% of the value on the log axis),
+    bar over its 95% interval on both plots (the efficiency's: Student t on K - 1
+    df on the log scale, :func:`~mcrt.analysis.convergence.recorded_excess_mse`),
     with the fitted power law (its slope in the legend) and the reference's
     noise floor. Against "seconds" a point sits at the cell's median render
     time with a horizontal bar over its 95% interval (``seconds_low`` ..
@@ -213,7 +214,8 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
         colour = colours[label]
         x = np.array([c["spp"] if axis == "spp" else c["seconds"] for c in cells], float)
         y = np.array([c["mse_excess"] for c in cells], float)
-        se = np.array([c["mse_sd"] for c in cells], float) / math.sqrt(k)
+        low_y, high_y = np.array([recorded_excess_mse(c["mse_excess"], c["mse_sd"], k)
+                                  .interval() for c in cells], float).T
         ok = np.array([bool(c["resolved"]) for c in cells]) & (y > 0)
         stable = np.array([not time or not c.get("time_problems") for c in cells])
         biased = np.array([bool(c.get("biased", False)) for c in cells])
@@ -224,7 +226,7 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
                 low = np.array([c.get("seconds_low", c["seconds"]) for c in cells], float)
                 high = np.array([c.get("seconds_high", c["seconds"]) for c in cells], float)
                 xerr = np.nan_to_num(np.clip([x - low, high - x], 0.0, None))[:, ok]
-            yerr = np.array([np.minimum(se, 0.95 * y), se])[:, ok]
+            yerr = np.nan_to_num(np.clip([y - low_y, high_y - y], 0.0, None))[:, ok]
             ax.errorbar(x[ok], y[ok], xerr=xerr, yerr=yerr, fmt="none", ecolor=colour,
                         elinewidth=1, capsize=2, zorder=2)
             filled, hollow = ok & stable, ok & ~stable
@@ -272,7 +274,7 @@ def plot_errors(ax: Axes, result: StudyResult, scene: str, axis: str, legend: bo
                 ha="center", va="center", fontsize=9, color="0.3")
     ax.set_xlabel("render time (s): median, 95% interval" if time else "samples per pixel (spp)",
                   fontsize=9)
-    ax.set_ylabel("MSE (reference noise removed), \u00b11 s.e.", fontsize=9)
+    ax.set_ylabel("MSE (reference noise removed), 95% interval", fontsize=9)
     ax.set_title(scene, fontsize=10)
     ax.grid(True, which="both", color="0.92", lw=0.5)
     ax.tick_params(which="both", labelsize=8)
