@@ -131,6 +131,10 @@ def run(args: argparse.Namespace) -> int:
         sampler = make_sampler(name, spp if adaptive_settings is None else
                                adaptive_settings.min_spp, **sampler_params) \
             if args.sampler else scene_sampler
+    if sampler is scene_sampler and adaptive_settings is None and spp != sampler.sample_count():
+        sampler = sampler.clone()  # --spp: the scene's at that count (rounding noted below)
+        with quiet_sampler_warnings():
+            sampler.set_sample_count(spp)
     stem = output_stem(args.output, f"{Path(args.scene).stem}_{name}")
     exr_path, png_path = stem.with_suffix(".exr"), stem.with_suffix(".png")
     heat_path = stem.with_name(stem.name + "_spp.png")

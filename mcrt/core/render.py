@@ -39,7 +39,7 @@ from .engine import (
     sampling_integrator,
     supported_film,
 )
-from .executor import Executor, cluster_status
+from .executor import Executor, cluster_status, task_memory
 from .inputs import check_max_lanes, check_sampler, check_scene, check_seed, check_sensor, check_spp
 from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
 from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
@@ -214,11 +214,22 @@ def _prepare(scene: mi.Scene, sampler: mi.Sampler, spp: int | None,
     sensor_obj = scene.sensors()[sensor]
     integrator = sampling_integrator(scene)
     film = supported_film(sensor_obj.film())
+    # A clone renders: the caller's (or the scene's) sampler keeps its count, seed state
+    # and film width, so a second render with it is the first's bits.
+    sampler = sampler.clone()
     if spp is not None and spp != sampler.sample_count():
-        sampler = sampler.clone()  # the caller's (or the scene's) keeps its count
         sampler.set_sample_count(spp)
     film.prepare(integrator.aov_names())
     return film, sampler, sampler.sample_count()
+
+
+def _restore_scene(on_pass: Callable[[int, int], None] | None) -> None:
+    """Let a sub-frame hook put the scene back as the render found it: its
+    ``restore()``, if it has one (motion blur's moves shapes), run after the
+    passes, also when they stopped on an error or Ctrl-C."""
+    restore = getattr(on_pass, "restore", None)
+    if callable(restore):
+        restore()
 
 
 def _run(scene: mi.Scene, sampler: mi.Sampler, accumulator: Accumulator, run: PassRun,
@@ -263,7 +274,8 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     ``max_lanes`` (a positive int; None: no limit but the memory's) caps the
     samples of one pass; ``passes`` forces the number of passes (it must divide
     the sample count); ``on_pass(index, count)`` runs before each pass is traced
-    (motion-blur sub-frames). ``checkpoints``
+    (motion-blur sub-frames; its ``restore()``, if it has one, after the passes, also
+    when they stop on an error or Ctrl-C). ``checkpoints``
     (:class:`~mcrt.core.job.Checkpointing`) resumes an interrupted render and
     saves the finished passes while it runs; ``tasks`` (:class:`PassTasks`)
     runs the passes elsewhere.
@@ -272,6 +284,9 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     passes is recorded the second time its (scene, sampler, pass shape) is rendered
     and replayed afterwards with each new seed (:mod:`mcrt.core.replay`): the same
     bits, without tracing; ``MCRT_REPLAY=0`` switches that off.
+
+    The sampler given (or the scene's) is cloned, not changed: a second call with the
+    same objects renders the same bits as a call with fresh ones.
     """
     sampler, spp, seed, sensor = _arguments("render_film", scene, sampler, spp, seed, sensor)
     max_lanes = check_max_lanes(max_lanes, "render_film")
@@ -285,9 +300,10 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     accumulator = FilmAccumulator(film, channels)
     # A sampler with per-lane state keeps folded passes to the usual size.
     fold_lanes = (max_lanes or MAX_LANES_PER_PASS) if keeps_lane_state(sampler) else None
+    workers = task_memory(tasks.executor) if tasks is not None else None  # passes run there
     run = PassRun(fitted_shape(width * height, spp, max_lanes, passes,
                                fixed_bytes=film_bytes(width * height, channels),
-                               fold=accumulator.fold, fold_lanes=fold_lanes))
+                               fold=accumulator.fold, fold_lanes=fold_lanes, available=workers))
     if resume is not None:
         if resume.meta.get("settings") != [spp, run.shape.passes, seed]:
             raise McrtError("the saved partial render was made with other settings")
@@ -349,6 +365,8 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
         partial = result()
         raise Interrupted(partial if run.done else None, run.done, run.shape.passes,
                           state=partial.checkpoint) from None
+    finally:
+        _restore_scene(on_pass)
     return result()
 
 
@@ -366,9 +384,12 @@ def render_film_pass(scene: mi.Scene, sampler: mi.Sampler, index: int, passes: i
     width, height = grid_pixels(film)
     run = PassRun(pass_shape(width * height, spp, passes=passes), done=index)
     accumulator = FilmAccumulator(film, channels)
-    run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
-               stop=index + 1, replayer=_pass_replay(scene, sampler, run, seed, sensor,
-                                                     accumulator, on_pass, eager=False))
+    try:
+        run_passes(scene, sampler, accumulator, run, seed, sensor=sensor, on_pass=on_pass,
+                   stop=index + 1, replayer=_pass_replay(scene, sampler, run, seed, sensor,
+                                                         accumulator, on_pass, eager=False))
+    finally:
+        _restore_scene(on_pass)
     return accumulator.state()
 
 
@@ -452,7 +473,10 @@ def render_stats(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
 
         accumulator = FilteredMomentsAccumulator(film)
     start = time.perf_counter()
-    _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)
+    try:
+        _run(scene, sampler, accumulator, run, seed, sensor, progress, on_pass)
+    finally:
+        _restore_scene(on_pass)
     dr.sync_thread()
     return StatsRender(stats=accumulator.stats(), spp=spp, passes=run.done,
                        seconds=time.perf_counter() - start)

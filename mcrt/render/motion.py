@@ -267,6 +267,9 @@ class MotionDriver:
         self._initial: list[_RigidShape | _MeshShape] = []
         self._shapes: dict[str, mi.Shape] = {}
         self.time: float | None = None
+        #: The moving shapes' parameters before the first move (None: not moved since
+        #: made or restored): what :meth:`restore` puts back.
+        self._before: dict[str, object] | None = None
         if not self.motions:  # nothing to move: no traversal of a large scene
             return
         self.params = mi.traverse(scene)
@@ -302,6 +305,8 @@ class MotionDriver:
         """Move every moving shape to its pose at time ``t`` and update the scene."""
         if not self._initial:
             return
+        if self._before is None:
+            self._before = self._current()
         for shape in self._initial:
             m = shape.motion.matrix(t, shape.centre)
             name = shape.motion.shape
@@ -313,6 +318,37 @@ class MotionDriver:
                 self._write(f"{name}.vertex_normals", shape.normals @ m[:3, :3].T)
         self.params.update()
         self.time = t
+
+    def _current(self) -> dict[str, object]:
+        """Copies of the parameters :meth:`set_time` writes, as they are now (a
+        parameter's object changes when the parameter is set)."""
+        now: dict[str, object] = {}
+        for shape in self._initial:
+            name = shape.motion.shape
+            if isinstance(shape, _RigidShape):
+                value = self.params[f"{name}.to_world"]
+                now[f"{name}.to_world"] = type(value)(value)
+                continue
+            arrays = ["vertex_positions"] + (["vertex_normals"] if shape.normals is not None
+                                             else [])
+            for key in (f"{name}.{array}" for array in arrays):
+                now[key] = np.array(self.params[key], dtype=np.float32)
+        return now
+
+    def restore(self) -> None:
+        """Put the moving shapes back as they were before the first :meth:`set_time`
+        since the driver was made or last restored (their arrays in place, as
+        sub-frames write them: a replay's recording stays valid)."""
+        before, self._before = self._before, None
+        if before is None:
+            return
+        for key, value in before.items():
+            if isinstance(value, np.ndarray):
+                self._write(key, value)
+            else:
+                self.params[key] = value
+        self.params.update()
+        self.time = None
 
     def _write(self, key: str, values: np.ndarray) -> None:
         """Set the mesh array ``key`` to ``values``: on the CPU over its own memory,
@@ -367,6 +403,11 @@ class SubframeHook:
 
     def __call__(self, index: int, count: int) -> None:
         self.driver.on_pass(index, count)
+
+    def restore(self) -> None:
+        """Put the scene back as the render found it (``render_film`` calls this
+        after the passes, also when they stop on an error or Ctrl-C)."""
+        self.driver.restore()
 
 
 def _matrix(transform: mi.ScalarTransform4f | mi.Transform4f) -> np.ndarray:

@@ -187,13 +187,16 @@ class McrtSampler(mi.Sampler):
         return type(self)(props)
 
     def clone(self) -> McrtSampler:
-        """An identical copy: it draws the same values as this sampler from now on."""
+        """An identical copy: it draws the same values as this sampler from now on.
+        Every instance attribute is copied (shallowly), the lane state and also
+        what a user set after construction (``sampler.scale = 0.5``) or a trace
+        changed: renders work on a clone, so what they do to it stays there."""
         other = self.fork()
         if self._layout is not None:
             other._run_base("seed", 0, self.wavefront_size())
-        for name in ("_key", "_dim", "_pass", "_pass_count", "_layout", "_lanes",
-                     "_lane_stride", "_lane_span", "_past_limit"):
-            setattr(other, name, getattr(self, name))
+        for name, value in self.__dict__.items():
+            if name != "_base_calls":  # (the re-entry guard of each object)
+                setattr(other, name, value)
         return other
 
     def to_string(self) -> str:

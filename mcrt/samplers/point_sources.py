@@ -147,15 +147,30 @@ def read_point_file(path: str | Path) -> dict[int, np.ndarray]:
     return tables
 
 
+#: Files read by :class:`FileSource`: (path, mtime, size) -> (tables, digest), the most
+#: recent :data:`_FILES_KEPT` (a render clones its sampler, which makes it anew).
+_FILES: dict[tuple, tuple[dict[int, np.ndarray], str]] = {}
+_FILES_KEPT = 8
+
+
 class FileSource:
     """Point sets read from a file (read once per process and file version)."""
 
     def __init__(self, filename: str | Path) -> None:
         self.path = Path(filename).expanduser().resolve()
-        self._tables = read_point_file(self.path)
-        stat = self.path.stat()
-        self.key = ("file", str(self.path), stat.st_mtime_ns, stat.st_size)
-        self.digest = file_digest(self.path)
+        stat = self.path.stat() if self.path.is_file() else None
+        self.key = ("file", str(self.path), stat.st_mtime_ns if stat else 0,
+                    stat.st_size if stat else 0)
+        read = _FILES.pop(self.key, None)
+        if read is None:
+            tables = read_point_file(self.path)
+            for table in tables.values():
+                table.setflags(write=False)  # shared by every sampler of this file
+            read = (tables, file_digest(self.path))
+        _FILES[self.key] = read
+        while len(_FILES) > _FILES_KEPT:
+            del _FILES[next(iter(_FILES))]
+        self._tables, self.digest = read
 
     def describe(self) -> str:
         return str(self.path)

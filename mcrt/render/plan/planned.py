@@ -44,7 +44,8 @@ class PlannedScene:
 
         ``sampler`` is a sampler plugin, the name of one (``"jittered"``: made
         with :func:`~mcrt.core.sampling.make_sampler` at ``spp``, default the
-        scene's sample count) or None (the scene's own sampler).
+        scene's sample count) or None (the scene's own sampler); it is left as it
+        is: render at ``spp`` (``render_film(..., spp=spp)``) when it has another count.
         ``subframes`` forces the sub-frame count (it must divide the sample count);
         ``time_mode`` is :func:`~mcrt.render.motion.subframe_times`' ``mode``.
         """
@@ -54,7 +55,8 @@ class PlannedScene:
                 sampler = make_sampler(sampler, spp if spp is not None else
                                        scene_sampler.sample_count())
         sampler = sampler if sampler is not None else scene_sampler
-        if spp is not None:
+        if spp is not None and spp != sampler.sample_count():
+            sampler = sampler.clone()  # the caller's (or the scene's) keeps its count
             with quiet_sampler_warnings():  # the render that follows reports any rounding
                 sampler.set_sample_count(spp)
         spp = sampler.sample_count()
