@@ -18,7 +18,7 @@ import numpy as np
 
 from .aliasing import UNMEASURED
 from .study import StudyResult
-from .study.conclude import bias_lines, cost_text, ratio_parts, timing_lines
+from .study.conclude import bias_lines, cost_df, cost_text, ratio_parts, timing_lines
 from .study.fields import CELL_COLUMNS, FIT_COLUMNS, Cell, Field
 
 
@@ -107,17 +107,18 @@ def summary_rows(result: StudyResult, scene: str) -> list[list[str]]:
         by_spp = {c["spp_requested"]: c for c in cells}
         rows.append([html.escape(sampler.label)]
                     + [_show(f, fit) for f in FIT_COLUMNS]
-                    + [_cost(fit, "fixed_seconds", 1e3), _cost(fit, "seconds_per_sample", 1e9)]
+                    + [_cost(fit, "fixed_seconds", 1e3, cells),
+                       _cost(fit, "seconds_per_sample", 1e9, cells)]
                     + [_ratio_cell(by_spp[spp]) if spp in by_spp else "pending"
                        for spp in result.config.spp]
                     + [_verdicts(cells)])
     return rows
 
 
-def _cost(fit: Mapping[str, Any], key: str, scale: float) -> str:
-    """A cost of ``fit`` (HTML; :func:`~.study.conclude.cost_text`: a bound when the
-    times do not resolve it)."""
-    text = cost_text(fit[key], fit[f"{key}_se"], scale, ".3g")
+def _cost(fit: Mapping[str, Any], key: str, scale: float, cells: list[Cell]) -> str:
+    """A cost of ``fit`` over ``cells``' timed renders (HTML;
+    :func:`~.study.conclude.cost_text`: a bound when the times do not resolve it)."""
+    text = cost_text(fit[key], fit[f"{key}_se"], scale, ".3g", df=cost_df(cells))
     return "&ndash;" if text == "-" else html.escape(text)
 
 

@@ -24,6 +24,7 @@ from ..analysis.study import (
 )
 from ..analysis.study.conclude import (
     bias_lines,
+    cost_df,
     cost_text,
     cpus_line,
     interval_text,
@@ -252,9 +253,13 @@ def _print_summary(result: StudyResult) -> None:
             spp_slope, time_slope = (
                 interval_text(fit[f"slope_{k}"], fit[f"slope_{k}_low"], fit[f"slope_{k}_high"],
                               "+.2f") for k in ("spp", "seconds"))
+            df = cost_df([c for c in result.cells
+                          if c["scene"] == scene and c["sampler"] == sampler.label])
+            fixed = cost_text(fit["fixed_seconds"], fit["fixed_seconds_se"], 1e3, df=df)
+            per_sample = cost_text(fit["seconds_per_sample"], fit["seconds_per_sample_se"], 1e9,
+                                   df=df)
             print(f"  {sampler.label:14s} {spp_slope:>22s} {time_slope:>22s} "
-                  f"{cost_text(fit['fixed_seconds'], fit['fixed_seconds_se'], 1e3):>9s} "
-                  f"{cost_text(fit['seconds_per_sample'], fit['seconds_per_sample_se'], 1e9):>9s}")
+                  f"{fixed:>9s} {per_sample:>9s}")
         print(f"  efficiency = 1/(excess MSE x median render time), as a ratio to {baseline}'s "
               f"at the same spp [95%]:")
         cells = {(c["sampler"], c["spp_requested"]): c for c in result.cells

@@ -135,3 +135,26 @@ def test_the_error_plots_bar_covers_the_excess_mse():
     assert band[0] <= new / r <= band[1], new / r
     assert old / r < stats.binom.ppf(0.0005, r, 0.6827) / r, old / r
     assert math.isnan(recorded_excess_mse(1e-3, 1e-4, 1).interval()[0])  # one seed: none
+
+
+def test_a_cost_of_zero_is_called_resolved_at_the_stated_rate():
+    """The study's cost columns show a value only when its 95% interval lies above 0
+    (else a bound). A sampler whose per-sample cost is 0, timed at 3 sizes x 2 rounds
+    (6 renders, 4 degrees of freedom) with normal noise: Student's t shows a value
+    in 3.0% of 4000 fits, within the binomial(4000, 0.025) count's central 99.9%
+    range (one-sided 2.5%); the normal 1.96 it replaced did in 6.3%."""
+    from mcrt.analysis.study.conclude import cost_df, cost_text
+    from mcrt.core.timing import fit_cost
+
+    rng = np.random.default_rng(17)
+    r, new, old = 4000, 0, 0
+    units = [64 * 64 * spp for spp in (4, 16, 64) for _ in range(2)]
+    for _ in range(r):
+        fit = fit_cost(units, list(0.02 + rng.normal(0, 1e-3, len(units))))
+        df = cost_df([{"times": [0.02] * 2} for _ in range(3)])  # the cells' 6 renders
+        shown = cost_text(fit.per_unit, fit.per_unit_se, 1e9, df=df)
+        new += shown[0] not in "<-"
+        old += cost_text(fit.per_unit, fit.per_unit_se, 1e9)[0] not in "<-"
+    band = stats.binom.ppf([0.0005, 0.9995], r, 0.025) / r
+    assert band[0] <= new / r <= band[1], new / r
+    assert old / r > band[1], old / r
