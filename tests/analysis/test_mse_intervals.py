@@ -162,6 +162,8 @@ if __name__ == "__main__":  # python -m tests.analysis.test_mse_intervals: the c
     cases = {"MSE, Gaussian errors, 8 trials": lambda: _gaussian_case(8),
              "MSE, Gaussian errors, 16 trials": lambda: _gaussian_case(16),
              "MSE, multijitter on the disk, N = 16, 16 trials": _multijitter_case,
+             "MSE, Laplace errors (kurtosis 6), 16 trials": lambda: _mse_coverage(
+                 np.random.default_rng(40).laplace(0.0, 0.3, (R, 16)), 2 * 0.09),
              "slope, power law, 8 trials per N": lambda: _slope_coverage([8] * 7, 0.0, 30),
              "slope, power law, 16 trials per N": lambda: _slope_coverage([16] * 7, 0.0, 30),
              "slope, ln MSE scattering by 0.1, default trials": lambda: _slope_coverage(
