@@ -84,7 +84,9 @@ CELL_FIELDS: tuple[Field, ...] = (
                      "seeds' renders and timing-only ones, every sampler of a sample count "
                      "interleaved in shuffled rounds after a warm-up (see time_protocol); "
                      "seconds_low/high: its 95% interval (Student t on the log, se = "
-                     "sqrt(pi/2) sd(log t) / sqrt(n))",
+                     "sqrt(pi/2) sd(log t) / sqrt(n)), over this run's rounds: a slow "
+                     "spell longer than them moves the whole cell, so another run may fall "
+                     "outside it (docs/metrics.md); efficiency_ratio pairs renders and holds",
           column=Column("time (ms) [95%]", "interval", scale=1e3), timed=True),
     Field("seconds_low", timed=True),
     Field("seconds_high", timed=True),
