@@ -38,6 +38,7 @@ from ..core.job import Interrupted
 from ..errors import McrtError
 from . import SUMMARIES, _common
 from ._common import check_output_files, ensure_writable_dir, examples
+from .reproduce_study import CARRIERS_TEXT
 
 log = logging.getLogger("mcrt.compare")
 
@@ -67,14 +68,15 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                         "mcrt compare configs/quick.toml --check",
                         "mcrt compare configs/full.toml -o out/full -q",
                         "mcrt compare configs/full.toml --cluster local:2",
-                        "mcrt compare --from out/compare/quick/results.csv"))
+                        "mcrt compare --from out/compare/quick/results.csv",
+                        "mcrt compare --from out/compare/quick/results.json -o again"))
     p.add_argument("config", metavar="CONFIG.toml", nargs="?",
                    help="study configuration (TOML)")
-    p.add_argument("--from", dest="from_csv", metavar="results.csv",
-                   help="run again the study whose results.csv this is (the command on its "
-                        "rows) into -o DIR (default: its folder + _again, beside it), and say "
-                        "whether every cell's numbers are the same bit for bit, times aside "
-                        "(exit status 1 if not)")
+    p.add_argument("--from", dest="from_file", metavar=CARRIERS_TEXT,
+                   help="run again the study whose results file this is (the command it "
+                        "records) into -o DIR (default: its folder + _again, beside it), and "
+                        "say whether every cell's numbers are the same bit for bit in the new "
+                        "file of that kind, times aside (exit status 1 if not)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="report directory (default: out/compare/<study name>)")
     p.add_argument("--check", action="store_true",
@@ -116,12 +118,13 @@ def _study_command(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.from_csv is not None:
+    if args.from_file is not None:
         from .reproduce_study import run_from
 
         return run_from(args)
     if args.config is None:
-        raise McrtError("give the study's configuration (CONFIG.toml), or --from results.csv")
+        raise McrtError(f"give the study's configuration (CONFIG.toml), or --from "
+                        f"{CARRIERS_TEXT}")
     config = load_config(args.config)  # every input error surfaces here, before rendering
     if args.check:
         print(f"{args.config}: OK ({len(config.scenes)} scenes, {len(config.samplers)} samplers, "

@@ -24,8 +24,9 @@ notes a file written by other software (:func:`software_changes`).
 
 The other formats carry the ``command`` where each has room for it: a PNG's text
 chunks (:func:`png_text`), a JSON file's key, a CSV's last columns on every row
-(:data:`CSV_COLUMNS`; ``mcrt compare --from results.csv`` runs a study again), an
-HTML report's note (:func:`html_note`).
+(:data:`CSV_COLUMNS`), an HTML report's note (:func:`html_note`). ``mcrt compare
+--from`` runs a study again from its results.csv or results.json
+(:mod:`mcrt.cli.reproduce_study`).
 """
 
 from __future__ import annotations
@@ -210,14 +211,16 @@ def located(scene: str | Path, params: dict[str, str]) -> dict[str, str]:
     return {k: absolute(v) if v in local else v for k, v in params.items()}
 
 
-def command_words(header: dict[str, Any], path: str | Path) -> list[str]:
+def command_words(header: dict[str, Any], path: str | Path,
+                  purpose: str = "render it again") -> list[str]:
     """The words of a header's ``command`` after ``mcrt`` (an error naming the
     file if it has none: not written by mcrt, or by a version before commands
-    were recorded)."""
+    were recorded; ``purpose`` says what the command was wanted for, as fits
+    the file: an image's renders it again, a study's results run the study)."""
     text = header.get(COMMAND)
     if not isinstance(text, str) or not text.strip():
-        raise McrtError(f"{path} records no command to render it again (not written by "
-                        f"mcrt, or by an older version of it)")
+        raise McrtError(f"{path} records no command to {purpose} (not written by mcrt, or "
+                        f"by an older version of it)")
     words = shlex.split(text)
     if not words or words[0] != "mcrt":
         raise McrtError(f"{path}: its command {text!r} is not an mcrt command")

@@ -1,5 +1,5 @@
 """A study's results.csv and report.html say how they were made, and ``mcrt compare
---from results.csv`` runs the study again from that alone.
+--from results.csv`` (or ``results.json``) runs the study again from that alone.
 
 results.csv is read back with ``csv`` (the command and the software on every row,
 the command the one results.json records), report.html with ``html.parser``; the
@@ -83,28 +83,61 @@ def test_compare_from_results_csv_runs_the_study_again(capsys, study):
     assert new[0]["command"] == old[0]["command"]
 
 
-def test_compare_from_says_which_cells_differ(capsys, study, tmp_path):
-    """A results.csv whose numbers were changed: exit status 1, the cell and the
-    column named; its default output is its folder + _again, beside it."""
+def test_compare_from_results_json_runs_the_study_again(capsys, study):
+    """results.json records the same command: the study runs again and the new
+    results.json's cells are the same as the old's, field by field, times aside."""
+    code, out, err = run_cli(capsys, "compare", "--from", str(study / "results.json"),
+                             "-o", "again")
+    assert code == 0, err
+    assert f"again/results.json: the same numbers as {study / 'results.json'} in all 4 " \
+        "cells, bit for bit (times aside)" in out, out
+    old = json.loads((study / "results.json").read_text())
+    new = json.loads(Path("again/results.json").read_text())
+    assert untimed(new["cells"]) == untimed(old["cells"]) and new["command"] == old["command"]
+
+
+def _results_json(study: Path) -> dict:
+    return json.loads((study / "results.json").read_text())
+
+
+@pytest.mark.parametrize("name", ["results.csv", "results.json"])
+def test_compare_from_says_which_cells_differ(capsys, study, tmp_path, name):
+    """A results file whose numbers were changed, and whose software was another
+    (results.csv's software column, results.json's environment): exit status 1,
+    the cell and the field named, the software noted first; its default output is
+    its folder + _again, beside it."""
     (tmp_path / "edited").mkdir()
-    rows = _rows(study / "results.csv")
-    rows[1]["mse"] = "0.5"
-    _write(tmp_path / "edited" / "results.csv", rows)
-    code, out, err = run_cli(capsys, "-q", "compare", "--from", "edited/results.csv")
+    if name == "results.csv":
+        rows = _rows(study / "results.csv")
+        rows[1]["mse"] = "0.5"
+        _write(tmp_path / "edited" / name, [{**r, "software": "mcrt 0.0.1"} for r in rows])
+        other = "mcrt 0.0.1 (now mcrt "
+    else:
+        data = _results_json(study)
+        data["cells"][1]["mse"] = 0.5
+        data["environment"]["mcrt_source"] = "0123456789abcdef"
+        other = "mcrt_source 0123456789abcdef (now "
+        (tmp_path / "edited" / name).write_text(json.dumps(data))
+    code, out, err = run_cli(capsys, "compare", "--from", f"edited/{name}")
     assert code == 1, err
     assert "1 of 4 cells differ" in out and "box/jittered/4 spp (mse)" in out, out
-    assert (tmp_path / "edited_again" / "results.csv").is_file()
+    assert "written by other software (noted above)" in out
+    assert f"was written by other software: {other}" in " ".join(err.split()), err
+    assert (tmp_path / "edited_again" / name).is_file()
 
 
-@pytest.mark.parametrize("edit, argv, message", [
+_REFUSALS = [
     ("none", ["s.toml"], "drop CONFIG.toml"),
     ("none", ["--restart"], "drop --restart"),
     ("partial", [], "partial study"),
-    ("no command", [], "records no command"),
-    ("two commands", [], "2 different commands"),
+    ("no command", [], "records no command to run its study again (not written by mcrt"),
     ("render", [], "does not run a study"),
     ("missing", [], "cannot read"),
-])
+]
+
+
+@pytest.mark.parametrize("edit, argv, message", [
+    *_REFUSALS, ("two commands", [], "2 different commands")])
 def test_compare_from_refuses_in_one_line(capsys, study, tmp_path, edit, argv, message):
     rows = _rows(study / "results.csv")
     if edit == "partial":
@@ -118,6 +151,29 @@ def test_compare_from_refuses_in_one_line(capsys, study, tmp_path, edit, argv, m
     if edit != "missing":
         _write(tmp_path / "results.csv", rows)
     code, _, err = run_cli(capsys, "compare", "--from", "results.csv", *argv)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path.parent / f"{tmp_path.name}_again").exists()  # nothing ran
+
+
+@pytest.mark.parametrize("edit, argv, message", [
+    *_REFUSALS, ("no cells", [], "holds no cells: it is not a study's results.json"),
+    ("not json", [], "cannot read results.json as a JSON file"),
+    ("other file", [], "give a study's results.csv or results.json")])
+def test_compare_from_results_json_refuses_in_one_line(capsys, study, tmp_path, edit, argv,
+                                                       message):
+    data = _results_json(study)
+    if edit == "partial":
+        data["partial"] = True
+    if edit == "no command":
+        del data["command"]
+    if edit == "render":
+        data["command"] = f"mcrt render {CORNELL}"
+    if edit == "no cells":
+        del data["cells"]
+    name = "results.txt" if edit == "other file" else "results.json"
+    if edit != "missing":
+        (tmp_path / name).write_text("{" if edit == "not json" else json.dumps(data))
+    code, _, err = run_cli(capsys, "compare", "--from", name, *argv)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path.parent / f"{tmp_path.name}_again").exists()  # nothing ran
 

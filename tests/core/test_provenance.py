@@ -273,7 +273,7 @@ def test_from_says_when_a_file_was_written_by_other_code(capsys):
     ("render", ["--spp", "8"], "drop --spp"),
     ("render", [str(CORNELL)], "drop SCENE.xml"),
     ("partial", [], "partial render"),
-    ("foreign", [], "records no command"),
+    ("foreign", [], "records no command to render it again"),
     ("none", [], "cannot read"),
 ])
 def test_from_refuses_in_one_line(capsys, setup, argv, message):
