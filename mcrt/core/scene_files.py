@@ -2,10 +2,10 @@
 
 A Mitsuba scene is an XML file plus what it includes (``<include
 filename=...>``) and the files it names (``<string name="filename" .../>``:
-meshes, textures, spectra, volumes), resolved as Mitsuba resolves them (an
-include relative to the file including it, any other file in the folders of
-``<path>`` elements and then the main scene's folder) with the scene's
-``$params`` and ``<default>`` values substituted. :func:`walk_scene`
+meshes, textures, spectra, volumes; ``<spectrum filename=.../>``), resolved as
+Mitsuba resolves them (an include relative to the file including it, any other
+file in the folders of ``<path>`` elements and then the main scene's folder)
+with the scene's ``$params`` and ``<default>`` values substituted. :func:`walk_scene`
 lists them once; :func:`scene_digest` (the identity of a scene's content in
 every cache key) and :func:`bundle_scene` (the files a worker without a shared
 file system needs) are both built on that walk.
@@ -72,16 +72,22 @@ def _resolve(name: str, folder: Path, search: list[Path]) -> tuple[Path, bool]:
 
 def walk_scene(path: str | Path, params: dict[str, str] | None = None,
                seen: set[Path] | None = None, search: list[Path] | None = None,
-               top: Path | None = None) -> Iterator[SceneFile]:
+               top: Path | None = None, values: dict[str, str] | None = None
+               ) -> Iterator[SceneFile]:
     """The scene's XML files (with their bytes) and, in document order, every
     reference in them; included XML files are walked in place, once each.
 
     Resolved as Mitsuba 3.9 does: an include relative to the file that includes
-    it, any other file (a mesh, a texture) relative to the main scene's folder
-    ``top``, even when an included file names it; ``<path value=...>`` elements
-    add folders to look in before that one."""
+    it, any other file (a mesh, a texture, a spectrum's ``<spectrum
+    filename=...>``) relative to the main scene's folder ``top``, even when an
+    included file names it; ``<path value=...>`` elements add folders to look in
+    before that one. ``$params`` are Mitsuba's one list for the whole parse:
+    ``params`` first, then each ``<default>`` in document order where its name is
+    not set yet, included files' too (an included file sees the defaults of the
+    file including it, and the rest of that file sees the included file's)."""
     seen = set() if seen is None else seen
     search = [] if search is None else search
+    values = dict(params or {}) if values is None else values
     path = Path(path).resolve()
     top = path.parent if top is None else top
     if path in seen:
@@ -93,13 +99,14 @@ def walk_scene(path: str | Path, params: dict[str, str] | None = None,
         root = ET.fromstring(data)
     except ET.ParseError:
         return  # Mitsuba will report it; the bytes are in the walk anyway
-    values = {el.get("name", ""): el.get("value", "") for el in root.iter("default")}
-    values.update(params or {})
     for el in root.iter():
+        if el.tag == "default":
+            values.setdefault(el.get("name", ""), el.get("value", ""))
+            continue
         if el.tag == "path" and el.get("value"):
             search.append(path.parent / _substitute(el.get("value", ""), values))
             continue
-        if el.tag == "include":
+        if el.tag in ("include", "spectrum"):
             name = el.get("filename")
         elif el.get("name") == "filename":
             name = el.get("value")
@@ -114,7 +121,7 @@ def walk_scene(path: str | Path, params: dict[str, str] | None = None,
         yield SceneFile(target.resolve() if exists else target, name=name, exists=exists,
                         xml=xml, in_cwd=in_cwd)
         if xml:
-            yield from walk_scene(target, params, seen, search, top)
+            yield from walk_scene(target, params, seen, search, top, values)
 
 
 def scene_digest(scene_path: str | Path, params: dict[str, str] | None = None) -> str:
