@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +13,15 @@ from scipy import integrate as sci_integrate
 
 from mcrt.analysis import integrate as ib
 from mcrt.cli.integrate_cmd import sample_counts
+from mcrt.core.provenance import software_text
 from tests.conftest import run_cli
+
+
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    """An integrate CSV's rows, read with ``csv``: its ``command`` column may hold
+    commas (``--sampler a,b``), quoted."""
+    with path.open(newline="", encoding="utf-8") as handle:
+        return list(csv.DictReader(handle))
 
 # --------------------------------------------------------------------------- integrands
 
@@ -197,9 +207,12 @@ def test_integrate_command(tmp_path, capsys):
     assert set(summary["slopes"]) == {"independent", "orthogonal", "uniform_grid"}
     slope = summary["slopes"]["independent"]
     assert slope["slope_low"] < slope["slope"] < slope["slope_high"]
-    rows = (out / "integrate_pi.csv").read_text().splitlines()
-    assert rows[0].startswith("sampler,n_requested,n,trials") and len(rows) == 1 + 3 * 3
+    rows = _csv_rows(out / "integrate_pi.csv")
+    assert list(rows[0])[:4] == ["sampler", "n_requested", "n", "trials"] and len(rows) == 3 * 3
     assert "mse_low" in rows[0] and "mse_high" in rows[0]
+    # the command (its --sampler list has commas) and the software, the same on every row
+    assert "independent,orthogonal,uniform_grid" in summary["command"]
+    assert {(r["command"], r["software"]) for r in rows} == {(summary["command"], software_text())}
     assert "RMSE 95% interval" in stdout and "exact" in stdout  # uniform_grid's MSE
     assert not list(out.glob(".*.tmp"))
 
@@ -304,16 +317,15 @@ def test_integrate_takes_your_point_sets_with_p(tmp_path, capsys):
                            "-P", f"filename={tmp_path / 'mine.npz'}", "-P", "randomize=none",
                            "--max-n", "64", "--trials", "32", "-o", str(out))
     assert code == 0, err
-    rows = {int(r.split(",")[2]): r.split(",")
-            for r in (out / "integrate_disk.csv").read_text().splitlines()[1:]}
+    rows = {int(r["n"]): r for r in _csv_rows(out / "integrate_disk.csv")}
     assert set(rows) == {16, 64}
-    header = (out / "integrate_disk.csv").read_text().splitlines()[0].split(",")
     for points in sets.values():
         expected = float(ib.INTEGRANDS["disk"].estimates(points.astype(np.float64))[0])
-        assert float(rows[points.shape[1]][header.index("mean_estimate")]) == \
+        assert float(rows[points.shape[1]]["mean_estimate"]) == \
             pytest.approx(expected, rel=1e-12, abs=1e-12)
     command = json.loads((out / "integrate_disk.json").read_text())["command"]
     assert f"-P filename={tmp_path / 'mine.npz'}" in command
+    assert {r["command"] for r in rows.values()} == {command}
     code, _, err = run_cli(capsys, "integrate", "disk", "--sampler", "pointset,jittered",
                            "-P", f"filename={tmp_path / 'mine.npz'}", "-o", str(tmp_path / "x"))
     assert code == 2 and err.count("\n") == 1
