@@ -5,6 +5,11 @@ finished (the one :class:`~mcrt.core.state_file.Checkpoint` format: key and chec
 :func:`load_state` uses a file only if it is an intact state of that key, in the
 expected role, with every pixel holding exactly the samples of its passes;
 anything else is set aside with a note and recomputed.
+
+``<key>.lock`` while a process looks the reference up and renders it
+(:func:`reference_lock`): a second process that wants the same reference at the
+same time waits, with a note, and then finds it finished in the cache instead of
+rendering it too (or resumes it, if the first was killed).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..cache import cache_dir
+from ..core.file_lock import waiting_lock
 from ..core.filtered import SUMS, FilteredStats
 from ..core.render import StatsRender
 from ..core.state_file import Checkpoint, Saving, set_aside
@@ -37,6 +43,16 @@ def cache_paths(key: str) -> tuple[Path, Path]:
     """``(finished, partial)`` cache files of ``key``."""
     directory = cache_dir(CACHE_NAME)
     return directory / f"{key}.npz", directory / f"{key}.partial.npz"
+
+
+def reference_lock(key: str) -> contextlib.AbstractContextManager[None]:
+    """Held while this process looks up and renders the reference of ``key``
+    (around :func:`load_state` and the passes): another process that wants the
+    same reference waits until this one is done, then reads the cache. The
+    kernel drops the lock of a process that ends, killed or not."""
+    return waiting_lock(cache_dir(CACHE_NAME) / f"{key}.lock",
+                        "another mcrt ({holder}) is rendering the same reference: waiting for "
+                        "it to finish, then taking the reference from the cache")
 
 
 def save_state(path: Path, key: str, stats: PixelStats | FilteredStats, passes_done: int,

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from ...core.file_lock import lock_owner
 from ...core.job import content_key
 from ...core.sampling import sampler_fingerprint
 from ...core.scene_files import scene_digest
@@ -418,33 +419,6 @@ if hasattr(os, "register_at_fork"):
 
 def _holder(info: os.stat_result) -> str:
     """Who holds the lock of the directory ``info`` describes: "PID n: its command
-    line" from ``/proc/locks`` (Linux), else "another process"."""
-    try:
-        lines = Path("/proc/locks").read_text().splitlines()
-    except OSError:
-        return "another process"
-    device = f"{os.major(info.st_dev):02x}:{os.minor(info.st_dev):02x}:{info.st_ino}"
-    pids = []
-    for line in lines:  # "1: FLOCK  ADVISORY  WRITE 4242 fe:00:2146865 0 EOF"
-        words = line.split()
-        if len(words) >= 6 and words[1] == "FLOCK" and words[5].endswith(f":{info.st_ino}"):
-            pids.append((words[5] == device, words[4]))
-    if not pids:
-        return "another process"
-    pid = max(pids)[1]
-    return f"PID {pid}: {_command_line(pid)}" if pid.isdigit() else "another process"
-
-
-def _command_line(pid: str) -> str:
-    """The command line of process ``pid`` (interpreter left out), shortened."""
-    try:
-        words = [w.decode(errors="replace")
-                 for w in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if w]
-    except OSError:
-        return "command unknown"
-    if len(words) > 1 and Path(words[0]).name.startswith("python"):
-        words = words[2:] if words[1] == "-m" else words[1:]  # python [-m] mcrt ...
-    if not words:
-        return "command unknown"
-    text = shlex.join([Path(words[0]).name, *words[1:]])
-    return text if len(text) <= 300 else text[:297] + "..."
+    line" where the system says (:func:`~mcrt.core.file_lock.lock_owner`), else
+    "another process"."""
+    return lock_owner(info) or "another process"
