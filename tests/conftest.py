@@ -26,7 +26,8 @@ from mcrt.samplers import registry  # noqa: E402
 #: command line): every test in them is ``slow``, left out of the everyday tier
 #: (``bash scripts/test.sh --fast``, i.e. ``-m "not slow"``); CI runs everything.
 END_TO_END_MODULES = frozenset({
-    "test_cluster", "test_cluster_faults", "test_kill_and_resume", "test_resource_limits",
+    "test_cluster", "test_cluster_faults", "test_cluster_memory", "test_kill_and_resume",
+    "test_resource_limits",
     "test_damaged_state_files", "test_report_viewer", "test_notebook", "test_extending",
     "test_fuzz_cli", "test_compare", "test_compare_resume", "test_study_state"})
 
@@ -35,7 +36,7 @@ END_TO_END_MODULES = frozenset({
 #: a process's memory: marked ``serial`` too (as are single tests elsewhere that do so, or that
 #: keep both cores busy by themselves), and CI runs them one at a time after the rest (``bash
 #: scripts/test.sh``): no other test competes with them for the 2 cores, and theirs with none.
-SERIAL_MODULES = frozenset({"test_cluster_faults", "test_kill_and_resume",
+SERIAL_MODULES = frozenset({"test_cluster_faults", "test_cluster_memory", "test_kill_and_resume",
                             "test_resource_limits"})
 
 

@@ -70,7 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import check_free_space, remove_stale_temporaries
-from ..core.executor import Executor, cluster_status
+from ..core.executor import Executor, cluster_status, task_memory
 from ..core.filtered import FilteredStats
 from ..core.job import Interrupted, Job, content_key, run_job
 from ..core.progress import Progress
@@ -240,7 +240,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     or scenes, before rendering.
     """
     hooks = ReferenceHooks(progress, on_pass, before_work)
-    setup = _setup(ReferenceRequest(scene_path, params, spp, sampler, seed, spp_per_pass))
+    setup = _setup(ReferenceRequest(scene_path, params, spp, sampler, seed, spp_per_pass),
+                   executor)
     height, width = setup.shape
     if cache:  # room for the partial and the finished state (and a temporary copy)
         remove_stale_temporaries(setup.finished.parent)
@@ -293,9 +294,10 @@ class _Setup:
                          resumed_passes=resumed, plan=self.plan, pass_seconds=pass_seconds)
 
 
-def _setup(request: ReferenceRequest) -> _Setup:
+def _setup(request: ReferenceRequest, executor: Executor | None = None) -> _Setup:
     """Check the request, plan the scene (kept for this process's tasks) and its
-    passes: every user error surfaces here, before any pass."""
+    passes (to fit the memory where ``executor`` runs them): every user error
+    surfaces here, before any pass."""
     scene_path, spp, sampler, seed = request.scene_path, request.spp, request.sampler, request.seed
     params, spp_per_pass = scene_params(request.params), request.spp_per_pass
     check_scene_file(scene_path)  # (a path: the cache keys the file's content)
@@ -315,7 +317,7 @@ def _setup(request: ReferenceRequest) -> _Setup:
         log.info("the reference is developed with the film's %s filter (float64; standard "
                  "errors count every filter weight)", film.rfilter().class_name())
     if spp_per_pass is None:
-        spp_per_pass = memory_pass_spp(width * height, spp)
+        spp_per_pass = memory_pass_spp(width * height, spp, executor)
     plan = plan_passes(sampler, spp, width * height, spp_per_pass)
     key = reference_key(scene_path, params, sampler, seed, plan, filtered)
     if filtered:  # the developed pixels: the crop window
@@ -392,20 +394,25 @@ def reference_pass(task: ReferencePass, index: int,
     return part
 
 
-def memory_pass_spp(pixels: int, spp: int) -> int | None:
+def memory_pass_spp(pixels: int, spp: int, executor: Executor | None = None) -> int | None:
     """Samples per pixel of a pass that fits the memory available, when the
     default pass (:func:`plan_passes`) would not; None when it fits (or no limit
-    is known). A one-line :class:`McrtError` if even 1 sample per pixel cannot."""
+    is known). A one-line :class:`McrtError` if even 1 sample per pixel cannot.
+    With an ``executor`` that runs the passes elsewhere (a Dask cluster), the
+    memory is its workers' (the least of theirs, their memory limits included)."""
     from ..core.memory import STATS_BYTES_PER_LANE, moments_bytes, require_memory
 
+    available = task_memory(executor)
     budget = require_memory(pixels, moments_bytes(pixels), "this reference",
-                            STATS_BYTES_PER_LANE)
+                            STATS_BYTES_PER_LANE, available,
+                            " on a Dask worker")
     default = min(spp, DEFAULT_PASS_SPP, max(1, LANE_BUDGET // max(1, pixels)))
     if budget is None or budget >= pixels * default:
         return None
     fitting = max(1, budget // pixels)
-    log.info("passes of %d samples per pixel fit in the memory available (%d lanes of about "
-             "%d bytes); the default %d would not", fitting, budget, STATS_BYTES_PER_LANE,
+    log.info("passes of %d samples per pixel fit in the memory available%s (%d lanes of about "
+             "%d bytes); the default %d would not", fitting,
+             "" if available is None else " on the Dask workers", budget, STATS_BYTES_PER_LANE,
              default)
     return fitting
 

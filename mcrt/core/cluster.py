@@ -16,8 +16,10 @@ when. While the scheduler lives, any number of workers may die, all of them at o
 inputs the tasks share are tasks that carry their value (not scattered data, which dies with
 the last worker holding it), so Dask makes them again, and it runs the lost tasks again (same
 results); a task or input Dask gives up on (its workers kept dying) is submitted again a few
-times; with no worker left the job waits for one (:data:`WORKER_WAIT`), then fails saying what
-was lost. A scheduler that cannot be reached, or that goes away, is a one-line
+times, unless the nanny killed its worker for memory (:meth:`DaskExecutor._outcome`); with no
+worker left the job waits for one (:data:`WORKER_WAIT`), then fails saying what was lost.
+Passes are sized to fit the workers' memory limits (:mod:`mcrt.core.worker_memory`). A
+scheduler that cannot be reached, or that goes away, is a one-line
 :class:`~mcrt.errors.McrtError` (Dask's own log lines and tracebacks are silenced while mcrt
 uses the client); the folded tasks stay checkpointed.
 """
@@ -40,9 +42,12 @@ from distributed.client import ClosedClientError
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..errors import McrtError
+from .dask_settings import SILENT, DaskSettings
 from .environ import env_number
 from .memory import reuse_freed_memory
 from .scene_files import SceneSource, describe
+from .worker_memory import install as limit_worker_memory
+from .worker_memory import memory_kill, workers_available
 
 log = logging.getLogger("mcrt.cluster")
 
@@ -57,7 +62,8 @@ POLL_SECONDS = 2.0
 #: How often Dask retries a task that raised (``Client.submit``'s ``retries``).
 RETRIES = 3
 
-#: Times a task is sent again after Dask gave up on it (``KilledWorker``) or cancelled it.
+#: Times a task is sent again after Dask gave up on it (``KilledWorker``: not for memory
+#: kills, see :meth:`DaskExecutor._outcome`) or cancelled it.
 RESUBMITS = 3
 
 #: Seconds to wait for a worker when none is left (``$MCRT_CLUSTER_WORKER_WAIT``).
@@ -75,17 +81,12 @@ _DONE = ("finished", "error", "cancelled")
 #: Why Dask cancels every future when the scheduler went away.
 _SCHEDULER_GONE = ("scheduler-connection-lost",)
 
-#: Loggers (and their children) silenced while an executor is open, and how.
-_SILENCED = ("distributed", "tornado")
-_SILENT = logging.CRITICAL + 1
-
-
 class WorkerSetup(WorkerPlugin):
     """Prepares each worker process: Mitsuba's variant (the client's), mcrt's
     plugins, the user's sampler plugins the client loaded (``plugins``: see
     :func:`mcrt.plugins.worker_state`) and the worker's share of Dr.Jit threads
     (local clusters: cores / N; elsewhere ``$MCRT_WORKER_THREADS`` on the
-    worker, else all its cores)."""
+    worker, else all its cores); its memory limit counts as one on renders."""
 
     name = "mcrt-setup"
 
@@ -109,6 +110,7 @@ class WorkerSetup(WorkerPlugin):
         if threads:
             dr.set_thread_count(threads)
         reuse_freed_memory()
+        limit_worker_memory(worker)
 
 
 def placement(indices: list[int], groups: Callable[[int], int],
@@ -133,12 +135,12 @@ class DaskExecutor:
 
     def __init__(self, client: Client, cluster: LocalCluster | None = None,
                  address: str = "", variant: str = "", threads: int | None = None,
-                 quiet: _Quiet | None = None) -> None:
+                 quiet: DaskSettings | None = None) -> None:
         self.client, self.cluster, self.address = client, cluster, address
         self._held: dict[str, Future] = {}  # shared inputs, by content (see _input)
         self._variant, self._threads = variant, threads
         self._plugins: tuple | None = None  # the plugin state the workers have
-        self._quiet = quiet or _Quiet()
+        self._quiet = quiet or DaskSettings()
         self._workers = 0                   # workers last seen (for messages)
         self._none_since: float | None = None  # when the last worker was seen to go
         self._noted = 0.0                   # when the last "waiting for workers" note went
@@ -164,7 +166,8 @@ class DaskExecutor:
     @classmethod
     def connect(cls, address: str) -> DaskExecutor:
         """Start ``local[:N]`` or connect to a scheduler; one-line errors. Dask's
-        own log records stay silent while the executor is open (see :class:`_Quiet`)."""
+        own log records stay silent while the executor is open (see
+        :class:`~mcrt.core.dask_settings.DaskSettings`)."""
         import mitsuba as mi
 
         variant = mi.variant() or "llvm_ad_rgb"
@@ -177,12 +180,12 @@ class DaskExecutor:
             workers = int(local.group(1) or cores)
             if workers < 1:
                 raise McrtError(f"--cluster {address}: a local cluster needs at least 1 worker")
-        quiet = _Quiet()
+        quiet = DaskSettings()
         try:
             if local:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address="127.0.0.1:0",  # this machine only
-                                       silence_logs=_SILENT, preload=["mcrt.core.local_workers"])
+                                       silence_logs=SILENT, preload=["mcrt.core.local_workers"])
                 client = Client(cluster)
                 quiet.apply()  # the loggers made while the cluster started
                 log.info("local Dask cluster: %d workers, %d Dr.Jit threads each", workers,
@@ -310,7 +313,16 @@ class DaskExecutor:
         """``(True, result)`` for a task done; ``(False, None)`` for one to submit
         again (its workers kept dying, or Dask cancelled it while the scheduler
         lives); the task's own error is raised as it is. ``pending``: the job's
-        tasks not yet done, for messages."""
+        tasks not yet done, for messages.
+
+        A task (or input) whose last worker its nanny restarted for passing the
+        worker's memory limit is not submitted again: one line says so. Dask already
+        ran it 4 times (``allowed-failures`` + 1), each retry on another worker or a
+        freshly restarted one (not a victim of an earlier task's leftovers), and tasks
+        are deterministic: a fifth run needs that memory again. Submitting it
+        :data:`RESUBMITS` more times cost 12 more restarts (16: 189 s for a ``local:1``
+        reference on a 600 MiB worker). Other deaths (SIGKILL, a node lost, a crash)
+        need not be the task's doing: those are submitted again."""
         if future.status == "error":
             error = future.exception()
             if not isinstance(error, KilledWorker):
@@ -319,6 +331,15 @@ class DaskExecutor:
             mine = getattr(error, "task", future.key) == future.key
             why = (f"Dask gave up on it after {deaths} of its workers died running it" if mine
                    else f"Dask gave up on its input after {deaths} of the workers loading it died")
+            killed = memory_kill(self.client, getattr(error, "last_worker", None))
+            if killed:
+                raise McrtError(f"task {index} of job {label} on the Dask cluster at "
+                                f"{self.address or 'local'}: {why}, the last one {killed}: it "
+                                f"needs more memory than a worker may use; give the workers "
+                                f"more (dask worker --memory-limit, fewer workers per machine) "
+                                f"or make it smaller (the image, the samples per pass); the "
+                                f"work finished so far is kept: run the same command again, "
+                                f"with or without --cluster, to resume")
         else:
             while True:
                 try:  # (lost with its worker since the status was read: Dask makes it again)
@@ -344,6 +365,13 @@ class DaskExecutor:
         log.info("task %d of job %s: %s; submitting it again (%d of %d)", index, label, why,
                  count, RESUBMITS)
         return False, None
+
+    def available_bytes(self) -> int | None:
+        """The memory a task can plan to use on the workers now (the least of theirs)."""
+        try:
+            return workers_available(self.client)
+        except _LOST as error:
+            raise self._lost_scheduler(error) from None
 
     def _workers_back(self) -> None:
         """Tasks finish (or workers are there) again after a time without workers."""
@@ -439,60 +467,6 @@ class DaskExecutor:
 def _identity(value: Any) -> Any:
     """A shared input's task: its value, carried in the task itself."""
     return value
-
-
-class _NoAllExit(logging.Filter):
-    """Drops asyncio's "Task exception was never retrieved" about Dask's internal
-    ``AllExit`` (a result fetch abandoned after its worker died: nothing to report,
-    and logged whenever the garbage collector gets to it, even after :meth:`close`)."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        error = record.exc_info[1] if record.exc_info else None
-        return type(error).__name__ != "AllExit" or \
-            not type(error).__module__.startswith("distributed")
-
-
-class _Quiet:
-    """Dask's log records off (``distributed.*``, ``tornado``) while mcrt uses a
-    client, and back as they were when it closes: losing workers is expected
-    and handled, and the scheduler's loss is mcrt's one-line error, so neither
-    should print Dask's log lines and tracebacks. Counted: the levels come
-    back when the last open executor closes."""
-
-    _open = 0
-    _saved: dict[str, int] = {}
-
-    def __init__(self) -> None:
-        self._active = False
-        asyncio_log = logging.getLogger("asyncio")
-        if not any(isinstance(f, _NoAllExit) for f in asyncio_log.filters):
-            asyncio_log.addFilter(_NoAllExit())  # for good: see _NoAllExit
-        self.apply()
-
-    def apply(self) -> None:
-        """Silence every Dask logger that exists now (loggers made later inherit)."""
-        cls = type(self)
-        if not self._active:
-            self._active = True
-            cls._open += 1
-        names = [name for name in list(logging.root.manager.loggerDict)
-                 if name.split(".")[0] in _SILENCED]
-        for name in {*names, *_SILENCED}:
-            logger = logging.getLogger(name)
-            if logger.level != _SILENT:
-                cls._saved.setdefault(name, logger.level)
-                logger.setLevel(_SILENT)
-
-    def restore(self) -> None:
-        cls = type(self)
-        if not self._active:
-            return
-        self._active = False
-        cls._open -= 1
-        if cls._open == 0:
-            for name, level in cls._saved.items():
-                logging.getLogger(name).setLevel(level)
-            cls._saved.clear()
 
 
 def _first_line(error: BaseException) -> str:

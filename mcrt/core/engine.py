@@ -101,23 +101,24 @@ def pass_shape(pixels: int, spp: int, max_lanes: int | None = None,
 def fitted_shape(pixels: int, spp: int, max_lanes: int | None = None,
                  passes: int | None = None, bytes_per_lane: int = BYTES_PER_LANE,
                  fixed_bytes: int = 0, fold: int = 1,
-                 fold_lanes: int | None = None) -> PassShape:
+                 fold_lanes: int | None = None, available: int | None = None) -> PassShape:
     """:func:`pass_shape`, with passes made smaller only when the default ones
-    would not fit the memory available (cgroup, ``ulimit -v``, the host: see
-    :mod:`mcrt.core.memory`), with a note: such a render may differ in the last
-    bits from one made with the default passes. Never below one sample per pixel
-    per pass."""
+    would not fit the memory available (cgroup, ``ulimit -v``, the host, a Dask
+    worker's limit: see :mod:`mcrt.core.memory`; ``available``: the memory where
+    the passes run, when that is not this process), with a note: such a render may
+    differ in the last bits from one made with the default passes. Never below one
+    sample per pixel per pass."""
     shape = pass_shape(pixels, spp, max_lanes, passes, fold, fold_lanes)
     if max_lanes is not None or passes is not None:
         return shape
-    budget = lane_budget(bytes_per_lane, fixed_bytes + KERNEL_BYTES)
+    budget = lane_budget(bytes_per_lane, fixed_bytes + KERNEL_BYTES, available)
     if budget is None or shape.lanes <= budget:
         return shape
     smaller = pass_shape(pixels, spp, max(pixels, budget), fold=fold, fold_lanes=budget)
     if smaller.passes != shape.passes:
-        log.info("passes of %d samples per pixel (not %d) to fit the memory available; "
+        log.info("passes of %d samples per pixel (not %d) to fit the memory available%s; "
                  "the image may differ in the last bits from one made with more memory",
-                 smaller.group, shape.group)
+                 smaller.group, shape.group, "" if available is None else " on the Dask workers")
     return smaller
 
 

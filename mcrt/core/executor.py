@@ -52,6 +52,14 @@ def cluster_status(executor: Any) -> str:
     return f", {text}" if text else ""
 
 
+def task_memory(executor: Any) -> int | None:
+    """The memory a task can plan to use where ``executor`` runs it, when that is not
+    this process: the least over a cluster's workers, their Dask memory limits
+    included (:mod:`mcrt.core.worker_memory`); None for this process."""
+    measure = getattr(executor, "available_bytes", None)
+    return measure() if callable(measure) else None
+
+
 def cluster_address(option: str | None) -> str | None:
     """The cluster to use: the ``--cluster`` option, else ``$MCRT_CLUSTER``
     (empty or unset: none, in-process)."""

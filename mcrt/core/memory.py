@@ -7,7 +7,10 @@ The memory available to this process is the smallest of:
 * the cgroup's limit less its current use (cgroup v2 ``memory.max`` /
   ``memory.current``, or v1 ``memory.limit_in_bytes`` / ``memory.usage_in_bytes``),
   with the memory the kernel can reclaim from the cgroup's page cache added;
-* the host's ``MemAvailable``.
+* the host's ``MemAvailable``;
+* limits that nothing in the kernel enforces, added by :func:`add_limit`: a Dask
+  worker's memory limit, which its nanny enforces by terminating the process
+  (:mod:`mcrt.core.worker_memory`).
 
 A pass's peak is modelled as ``fixed_bytes + lanes * bytes_per_lane``:
 ``fixed_bytes`` for what does not depend on the pass size (the accumulator's
@@ -28,6 +31,7 @@ import errno
 import os
 import resource
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import McrtError
@@ -53,6 +57,21 @@ def _read_int(path: Path) -> int | None:
     except (OSError, IndexError, MemoryError):
         return None
     return int(text) if text.isdigit() else None
+
+
+def resident_bytes() -> int | None:
+    """This process's resident memory (``VmRSS``): what a Dask nanny limits. Read
+    from ``/proc/self/statm`` (6 us; ``/proc/self/status``: 29 us): a worker's
+    every render asks."""
+    try:
+        fd = os.open("/proc/self/statm", os.O_RDONLY)
+        try:
+            pages = int(os.read(fd, 256).split()[1])
+        finally:
+            os.close(fd)
+        return pages * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return _status_bytes("VmRSS")
 
 
 def _status_bytes(field: str) -> int | None:
@@ -212,11 +231,34 @@ def _host_available() -> int | None:
     return None
 
 
+#: The limits of :func:`add_limit`, by name: each returns the bytes it still allows.
+_LIMITS: dict[str, Callable[[], int | None]] = {}
+
+
+def add_limit(name: str, left: Callable[[], int | None]) -> None:
+    """Count a limit that neither the kernel nor ``ulimit`` enforces in
+    :func:`available_bytes`: ``left()`` returns the bytes it still allows (None:
+    none now); ``name`` says it in messages ("the Dask worker's memory limit").
+    Replaces a limit of the same name."""
+    _LIMITS[name] = left
+
+
+def _other_limits() -> list[tuple[str, int]]:
+    """(name, bytes left) of the limits of :func:`add_limit` that say one now."""
+    found = []
+    for name, left in list(_LIMITS.items()):
+        value = left()
+        if value is not None:
+            found.append((name, value))
+    return found
+
+
 def available_bytes() -> int | None:
     """Bytes this process can still allocate (the tightest of ``ulimit -v``, the
-    cgroup limit and the host's available memory); None if none is known."""
+    cgroup limit, the host's available memory and :func:`add_limit`'s limits);
+    None if none is known."""
     known = [v for v in (_address_space_left(), _cgroup_left(), _host_available())
-             if v is not None]
+             if v is not None] + [left for _, left in _other_limits()]
     return min(known) if known else None
 
 
@@ -253,23 +295,28 @@ def _mib(value: int) -> str:
 
 
 def require_memory(pixels: int, fixed_bytes: int, what: str,
-                   bytes_per_lane: int = BYTES_PER_LANE) -> int | None:
+                   bytes_per_lane: int = BYTES_PER_LANE, available: int | None = None,
+                   where: str = "") -> int | None:
     """Before rendering: the lane budget (as :func:`lane_budget`, with
     :data:`KERNEL_BYTES` added to ``fixed_bytes``), or a one-line
     :class:`McrtError` if even the smallest pass (one sample of every pixel)
-    cannot fit."""
-    available = available_bytes()
+    cannot fit. ``available``: the memory where the passes run, if not here
+    (``where`` says where: " on a Dask worker")."""
+    if available is None:
+        available, where = available_bytes(), ""
     fixed_bytes += KERNEL_BYTES
     budget = lane_budget(bytes_per_lane, fixed_bytes, available)
     if budget is not None and budget < pixels:
         assert available is not None
         needed = (fixed_bytes + pixels * bytes_per_lane) / USABLE_SHARE
-        limits = []
-        if _address_space_left() is not None:
-            limits.append("ulimit -v")
-        if _cgroup_left() is not None:
-            limits.append("the cgroup's memory limit")
-        where = f" (under {' and '.join(limits)})" if limits else ""
+        if not where:
+            limits = []
+            if _address_space_left() is not None:
+                limits.append("ulimit -v")
+            if _cgroup_left() is not None:
+                limits.append("the cgroup's memory limit")
+            limits += [name for name, _ in _other_limits()]
+            where = f" (under {' and '.join(limits)})" if limits else ""
         raise McrtError(f"not enough memory for {what}: even its smallest pass (1 sample per "
                         f"pixel) needs about {_mib(int(needed))}, {_mib(available)} are "
                         f"available{where}; use a smaller image or raise the limit")
@@ -289,7 +336,9 @@ def describe() -> str:
     try:
         parts = [f"{name} {_mib(value)}" for name, value in
                  (("ulimit -v left", _address_space_left()), ("cgroup left", _cgroup_left()),
-                  ("host available", _host_available())) if value is not None]
+                  ("host available", _host_available()),
+                  *((f"{name} left", left) for name, left in _other_limits()))
+                 if value is not None]
         return ", ".join(parts) or "no limit known"
     except Exception:  # MemoryError included: the message must still be printed
         return "the limits could not be read"
@@ -321,7 +370,7 @@ def reuse_freed_memory() -> bool:
 
 
 __all__ = ["BYTES_PER_LANE", "KERNEL_BYTES", "LLVM_LOAD_BYTES", "STATS_BYTES_PER_LANE",
-           "THREAD_START_BYTES", "address_space_left", "available_bytes", "describe",
-           "film_bytes", "is_allocation_failure", "lane_budget", "moments_bytes",
+           "THREAD_START_BYTES", "add_limit", "address_space_left", "available_bytes",
+           "describe", "film_bytes", "is_allocation_failure", "lane_budget", "moments_bytes",
            "out_of_memory_message", "require_address_space", "require_memory",
-           "reuse_freed_memory"]
+           "resident_bytes", "reuse_freed_memory"]
