@@ -25,7 +25,7 @@ from mcrt.errors import McrtError
 from mcrt.io import read_exr
 from mcrt.render.plan import plan_scene
 from mcrt.render.plan.edits import SPOT_BEAM_DEG
-from tests.conftest import ROOT, run_cli
+from tests.conftest import ROOT, run_cli, scene_xml
 
 FOREIGN = ROOT / "scenes" / "foreign"
 OLD = FOREIGN / "old_format.xml"
@@ -387,3 +387,30 @@ def test_indirect_off_names_the_emitters_that_need_a_bsdf_sample(tmp_path):
     assert plan.integrator["type"] == "direct" and plan.integrator["bsdf_samples"] == 1
     assert "constant emitter" in plan.integrator_reason
     assert "area" not in plan.integrator_reason
+
+
+def test_a_plan_names_a_scenes_many_objects_in_a_line(tmp_path):
+    """A scene of many objects (40 area-lit tiles, 30 spheres of one rough plastic
+    each, 12 of them in fog): the reasons name repeated objects once with their
+    count and count what is past the first six, so ``mcrt plan`` prints a line per
+    effect; they listed every one (about 1500 characters for the BSDFs alone)."""
+    tiles = "".join(
+        f'<shape type="rectangle"><transform name="to_world"><scale value="0.05"/>'
+        f'<translate x="{i / 20 - 1:g}" y="2"/></transform><emitter type="area">'
+        f'<rgb name="radiance" value="1"/></emitter></shape>' for i in range(40))
+    fog = '<medium type="homogeneous" name="interior"><float name="sigma_t" value="1"/></medium>'
+    balls = "".join(
+        f'<shape type="sphere"><float name="radius" value="0.02"/>'
+        f'<point name="center" x="{i / 15 - 1:g}" y="0" z="0"/>'
+        f'<bsdf type="roughplastic"/>{fog if i < 12 else ""}</shape>' for i in range(30))
+    path = tmp_path / "many.xml"
+    path.write_text(scene_xml(tiles + balls, '<integrator type="direct"/>'))
+    plan = plan_scene(path).plan
+    glossy = plan.effects["glossy"].reason
+    assert glossy == "rough BSDFs: roughplastic (roughplastic, alpha 0.1) x30"
+    shadows = plan.effects["soft_shadows"].reason
+    assert shadows.startswith("40 area emitters (") and shadows.endswith(", and 34 more)")
+    assert shadows.count(",") == 6
+    media = next(note for note in plan.notes if note.startswith("participating media"))
+    assert media.startswith("participating media: homogeneous (interior of 'sphere') x12;")
+    assert max(len(line) for line in plan.describe().splitlines()) < 250

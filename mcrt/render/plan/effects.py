@@ -19,7 +19,7 @@ from ...errors import McrtError
 from ..motion import NEGLIGIBLE_STREAK_PX, Motion
 from ..scene import SceneDescription
 from .camera import CameraModel, circle_of_confusion, streak_px
-from .model import EFFECTS, Effect
+from .model import EFFECTS, Effect, listing
 from .nodes import children, scalar
 from .scan import (
     DELTA_EMITTERS,
@@ -159,7 +159,7 @@ def decide_unlit(d: Decisions, author: AuthoredIntegrator) -> None:
 
 def decide_soft_shadows(d: Decisions, facts: ScanFacts) -> None:
     area = facts.scan.area_lights
-    names = ", ".join(facts.node_id(s) for s, _ in area)
+    names = listing(facts.node_id(s) for s, _ in area)
     lit = facts.scan.reflecting_shapes > 0
     reason = (f"{len(area)} area emitter{'s' if len(area) != 1 else ''}"
               + (f" ({names})" if names else "")
@@ -168,7 +168,7 @@ def decide_soft_shadows(d: Decisions, facts: ScanFacts) -> None:
              "the scene has no area emitter" if not area else "nothing in the scene to shadow")
     env = environment_emitters(facts.scan)
     if env:
-        d.notes.append(f"environment emitters ({', '.join(env)}) light with area too; "
+        d.notes.append(f"environment emitters ({listing(env)}) light with area too; "
                        f"soft_shadows does not switch them")
 
 
@@ -186,7 +186,7 @@ def decide_glossy(d: Decisions, facts: ScanFacts) -> None:
     smooth = [] if delta else [b for b in rough
                                if b.alpha is not None and b.alpha < GLOSSY_MIN_ALPHA]
     glossy = any(b.alpha is None or b.alpha >= GLOSSY_MIN_ALPHA for b in rough)
-    desc = ", ".join(_describe_rough(facts, b) for b in rough)
+    desc = listing(_describe_rough(facts, b) for b in rough)
     if glossy:
         reason = f"rough BSDFs: {desc}"
     elif rough and delta:
@@ -250,7 +250,7 @@ def decide_motion(d: Decisions, facts: SceneFacts) -> None:
     motions = facts.scan.moving
     t_open, t_close = facts.shutter
     d.motions = motions
-    ids = ", ".join(m.shape for m in motions)
+    ids = listing(m.shape for m in motions)
     if not motions:
         d.decide("motion", False, "no moving shape", "the scene has no moving shape")
         return
@@ -328,7 +328,7 @@ def note_media(d: Decisions, scan: Scan, author: AuthoredIntegrator) -> None:
     if not scan.media:
         return
     volumetric = [leaf.kind for leaf in author.leaves() if leaf.kind in VOLUMETRIC]
-    d.notes.append(f"participating media: {', '.join(scan.media)}; "
+    d.notes.append(f"participating media: {listing(scan.media)}; "
                    + (f"rendered by {', '.join(volumetric)}" if volumetric else
                       f"'{author.kind}' ignores them (only volpath, volpathmis and prbvolpath "
                       f"render media)"))

@@ -6,7 +6,7 @@ objects, ``direct`` for everything else."""
 from __future__ import annotations
 
 from .effects import Decisions, ScanFacts
-from .model import IntegratorSpec
+from .model import IntegratorSpec, listing
 from .nodes import integer, scalar, scalars
 from .scan import AuthoredIntegrator, environment_emitters
 
@@ -78,7 +78,7 @@ def _cut_out_path(facts: ScanFacts, author: AuthoredIntegrator) -> tuple[Integra
 
 
 def _cut_out_bias(facts: ScanFacts, kept: str = "") -> str:
-    masks = ", ".join(facts.scan.cut_outs)
+    masks = listing(facts.scan.cut_outs)
     return (f"cut-out BSDFs ({masks}): {kept}the image is mi.render's, which Mitsuba 3.9's "
             f"path makes too dark there (opacity^2 in place of opacity for sampled light: "
             f"docs/mask-path-bias.md)")

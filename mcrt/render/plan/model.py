@@ -22,6 +22,25 @@ EFFECTS: dict[str, str] = {
 #: An integrator as the plan renders it: plugin name under "type", then its properties.
 IntegratorSpec = dict[str, bool | int | float | str]
 
+#: Distinct objects a reason names one by one; the others are counted.
+LISTED = 6
+
+
+def listing(items: Iterable[str], limit: int = LISTED) -> str:
+    """``items`` (objects of the scene) as a reason names them: each distinct one
+    once, in order, with its count when it repeats (``roughplastic (roughplastic,
+    alpha 0.1) x500``), and past ``limit`` distinct ones only how many are left
+    (``..., and 994 more``), so that a scene of thousands of shapes, lights or
+    BSDFs gets a line, not a page."""
+    counts: dict[str, int] = {}
+    for item in items:
+        counts[item] = counts.get(item, 0) + 1
+    parts = [item if n == 1 else f"{item} x{n}" for item, n in counts.items()]
+    if len(parts) > limit:
+        rest = sum(list(counts.values())[limit:])
+        parts = [*parts[:limit], f"and {rest} more"]
+    return ", ".join(parts)
+
 
 @dataclass
 class Effect:
