@@ -414,3 +414,41 @@ def test_a_plan_names_a_scenes_many_objects_in_a_line(tmp_path):
     media = next(note for note in plan.notes if note.startswith("participating media"))
     assert media.startswith("participating media: homogeneous (interior of 'sphere') x12;")
     assert max(len(line) for line in plan.describe().splitlines()) < 250
+
+
+GROUPED = """<shape type="shapegroup" id="grp">{group_motion}
+    <shape type="sphere" id="member"><float name="radius" value="0.3"/>{member_motion}</shape>
+</shape>
+<shape type="instance" id="copy"><ref id="grp"/>{instance_motion}
+    <transform name="to_world"><translate x="-1"/></transform></shape>
+<emitter type="point"><point name="position" value="0, 0, 5"/><rgb name="intensity" value="5"/></emitter>"""
+VELOCITY = '<vector name="mcrt_velocity" value="2, 0, 0"/>'
+SHUTTER = '<float name="fov" value="40"/><float name="shutter_close" value="1"/>'
+
+
+@pytest.mark.parametrize("where, message", [
+    ("member_motion", "shape 'member' cannot move: it is in the shapegroup 'grp'"),
+    ("group_motion", "shapegroup 'grp' cannot move"),
+])
+def test_motion_of_a_shapegroups_shapes_is_refused_and_instances_move(tmp_path, where,
+                                                                       message):
+    """mcrt's motion properties on a shape inside a ``shapegroup`` (or on the
+    group) are refused in one line that says to move the instances; they ended in
+    a KeyError traceback (the plan looked the shape up among the scene's shapes,
+    where only the instances are). An instance itself moves."""
+    def write(**motion: str) -> Path:
+        body = GROUPED.format(**{"group_motion": "", "member_motion": "",
+                                 "instance_motion": "", **motion})
+        path = tmp_path / "grouped.xml"
+        path.write_text(scene_xml(body, '<integrator type="direct"/>')
+                        .replace('<float name="fov" value="40"/>', SHUTTER))
+        return path
+
+    with pytest.raises(McrtError, match=re.escape(message)):
+        plan_scene(write(**{where: VELOCITY}))
+    planned = plan_scene(write(instance_motion=VELOCITY), {}, None)
+    assert planned.plan.on("motion")
+    planned.driver.set_time(0.5)
+    (copy,) = planned.scene.shapes()
+    centre = (np.array(copy.bbox().min).ravel() + np.array(copy.bbox().max).ravel()) / 2
+    assert np.allclose(centre, [-1 + 2 * 0.5, 0, 0], atol=1e-5)

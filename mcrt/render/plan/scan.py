@@ -14,6 +14,7 @@ from typing import Any, NamedTuple
 
 import mitsuba as mi
 
+from ...errors import SceneError
 from ..motion import Motion, take_motion
 from ..scene import SceneDescription
 from .nodes import children, integer
@@ -115,7 +116,28 @@ def scan_scene(desc: SceneDescription) -> Scan:
             _scan_shape(scan, desc, i, node.props)
         if node.type in (mi.ObjectType.Shape, mi.ObjectType.Sensor):
             _scan_media(scan, desc, node.props)
+    _check_motions_move_scene_shapes(desc, scan)
     return scan
+
+
+def _check_motions_move_scene_shapes(desc: SceneDescription, scan: Scan) -> None:
+    """Motion moves what ``scene.shapes()`` holds (shapes and instances): a
+    ``shapegroup`` and the shapes in one are not there (every instance of the
+    group shares them), so moving them is refused, naming what to move instead."""
+    nodes = desc.nodes
+    groups = {j: nodes[i].props.id() for i, node in enumerate(nodes)
+              if node.type == mi.ObjectType.Shape and node.props.plugin_name() == "shapegroup"
+              for _, j in children(desc, node.props)}
+    for i, motion in scan.motions.items():
+        if nodes[i].props.plugin_name() == "shapegroup":
+            raise SceneError(f"shapegroup '{motion.shape}' cannot move: mcrt moves the "
+                             f"scene's shapes and instances; give its instances (<shape "
+                             f"type=\"instance\">) the mcrt_* motion properties")
+        if i in groups:
+            raise SceneError(f"shape '{motion.shape}' cannot move: it is in the shapegroup "
+                             f"'{groups[i]}', whose shapes every instance shares; give the "
+                             f"instances (<shape type=\"instance\">) the mcrt_* motion "
+                             f"properties")
 
 
 def _sensors_in_mitsubas_order(desc: SceneDescription, top: list[int]) -> list[int]:
