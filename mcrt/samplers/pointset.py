@@ -9,7 +9,8 @@ pairs) and a randomisation of the set (:data:`RANDOMIZATIONS`).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import ClassVar, cast
+from contextvars import ContextVar
+from typing import TYPE_CHECKING, ClassVar, cast
 
 import drjit as dr
 import mitsuba as mi
@@ -21,6 +22,8 @@ from ._types import Mask
 from .base import McrtSampler
 
 # .point_sources (numpy) is imported on first use, as poisson_disk's tables are.
+if TYPE_CHECKING:
+    from .point_sources import FileSource
 
 #: Randomisations of a drawn set, and what each keeps of the set's properties.
 RANDOMIZATIONS: dict[str, str] = {
@@ -73,6 +76,10 @@ def device_table(key: tuple, table_of) -> tuple[mi.Float, mi.Float, int]:
         _DEVICE[full_key] = (mi.Float(table[:, :, 0].ravel()), mi.Float(table[:, :, 1].ravel()),
                              int(table.shape[0]))
     return _DEVICE[full_key]
+
+
+#: The file source of the sampler being forked (see :meth:`PointSetSampler.fork`).
+_FORKING: ContextVar[FileSource | None] = ContextVar("mcrt_pointset_forking", default=None)
 
 
 def _resolved(filename: str) -> str:
@@ -201,11 +208,24 @@ class PointSetSampler(McrtSampler):
             if "filename" not in props:
                 raise SamplerError(f"{self.plugin_name}: give the point sets' file, e.g. "
                                    f"<string name=\"filename\" value=\"sets.npy\"/>")
-            self._source = FileSource(_resolved(str(props["filename"])))
+            path = _resolved(str(props["filename"]))
+            kept = _FORKING.get()  # a fork or clone keeps the tables its original read
+            self._source = kept if kept is not None and kept.describe() == path \
+                else FileSource(path)
             self.filename = self._source.describe()  # by absolute path, as found
         # Without a sample_count the C++ default (4) stands in; a file that has no
         # 4-point sets then serves its smallest (see _effective_count).
         self._count_defaulted = "sample_count" not in props
+
+    def fork(self) -> McrtSampler:
+        """A fresh sampler with the same parameters and the same point tables: not
+        read again (the file may have changed or gone since, e.g. a cluster
+        bundle's copy; a render works on a clone of its sampler)."""
+        token = _FORKING.set(self._source if self.filename else None)  # (a file's)
+        try:
+            return super().fork()
+        finally:
+            _FORKING.reset(token)
 
     def _parameters(self) -> dict:
         params = {"randomize": self.randomize, "dims1d": self.dims1d}

@@ -287,3 +287,17 @@ def test_point_files_render_with_the_variance_of_the_sampler_that_made_them(tmp_
     assert independent > 2 * jittered  # the test can tell the two apart
     assert 0.8 < variance("pointset", filename=jit) / jittered < 1.25
     assert 0.8 < variance("pointset", filename=iid, dims1d="projection") / independent < 1.25
+
+
+def test_a_clone_keeps_its_tables_when_the_file_is_gone_or_changed(jittered_file, tmp_path):
+    # A render works on a clone of its sampler: the clone must draw what the
+    # original draws, from the tables the original read, not read the file again
+    # (a cluster bundle's copy may be gone; a file rewritten since is another sampler).
+    scene = small_cornell(8)
+    original = mi.load_dict({"type": "pointset", "sample_count": 16, "filename": jittered_file})
+    expected = render_film(scene, original.clone(), spp=16, seed=3).image
+    save(jittered_file, jittered_sets(64, 16, np.random.default_rng(99)))  # rewritten
+    np.testing.assert_array_equal(render_film(scene, original, spp=16, seed=3).image, expected)
+    (tmp_path / "jit.npy").unlink()  # gone
+    np.testing.assert_array_equal(render_film(scene, original.clone(), spp=16, seed=3).image,
+                                  expected)
