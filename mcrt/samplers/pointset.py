@@ -221,7 +221,7 @@ class PointSetSampler(McrtSampler):
         """A fresh sampler with the same parameters and the same point tables: not
         read again (the file may have changed or gone since, e.g. a cluster
         bundle's copy; a render works on a clone of its sampler)."""
-        token = _FORKING.set(self._source if self.filename else None)  # (a file's)
+        token = _FORKING.set(cast("FileSource", self._source) if self.filename else None)
         try:
             return super().fork()
         finally:
