@@ -90,6 +90,7 @@ from .reference_cache import (
     StateSaver,
     cache_paths,
     load_state,
+    reference_lock,
 )
 from .reference_exr import reference_layers as reference_layers  # its EXR file, named here too
 from .reference_exr import reference_metadata as reference_metadata
@@ -249,13 +250,15 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                          "the reference cache files", STATE_BYTES_PER_PIXEL * width * height)
     if hooks.before_work is not None:
         hooks.before_work(width, height)
-    start: StatsRender | None = None
-    done, seconds = 0, 0.0
-    if cache:
+    if not cache:
+        return _render(setup, None, 0, 0.0, False, hooks, executor)
+    with reference_lock(setup.key):  # another process rendering it: wait, then read it here
         found = load_state(setup.finished, setup.key, setup.plan, setup.shape, complete=True,
                            filtered=setup.filtered)
         if found is not None:
             return setup.result(found[0], found[2], cached=True)
+        start: StatsRender | None = None
+        done, seconds = 0, 0.0
         found = load_state(setup.partial, setup.key, setup.plan, setup.shape, complete=False,
                            filtered=setup.filtered)
         if found is not None:
@@ -263,7 +266,7 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
             done, seconds = found[1], found[2]
             log.info("resuming reference %s after pass %d of %d", setup.key, done,
                      setup.plan.passes)
-    return _render(setup, start, done, seconds, cache, hooks, executor)
+        return _render(setup, start, done, seconds, True, hooks, executor)
 
 
 @dataclass

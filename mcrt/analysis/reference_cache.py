@@ -52,7 +52,8 @@ def reference_lock(key: str) -> contextlib.AbstractContextManager[None]:
     kernel drops the lock of a process that ends, killed or not."""
     return waiting_lock(cache_dir(CACHE_NAME) / f"{key}.lock",
                         "another mcrt ({holder}) is rendering the same reference: waiting for "
-                        "it to finish, then taking the reference from the cache")
+                        "it, then taking its result from the cache (or going on from its "
+                        "saved passes if it stopped)")
 
 
 def save_state(path: Path, key: str, stats: PixelStats | FilteredStats, passes_done: int,

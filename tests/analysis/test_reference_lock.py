@@ -23,9 +23,6 @@ from tests.conftest import ROOT
 
 pytestmark = [
     pytest.mark.slow,
-    # Until get_reference holds reference_lock around its cache lookup and passes (the call
-    # site is pending in mcrt/analysis/reference.py): then this passes; drop the marker.
-    pytest.mark.xfail(strict=True, reason="get_reference does not take reference_lock yet"),
 ]
 
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
