@@ -93,7 +93,7 @@ def test_a_second_reference_waits_for_the_first(tmp_path, end):
         notes = _lines(second.stderr)
         seen = _until(notes, "is rendering the same reference")
         assert seen and f"mcrt: note: another mcrt (PID {first.pid}: first.py) is rendering " \
-            "the same reference: waiting for it to finish" in seen[-1], seen
+            "the same reference: waiting for it, then taking its result" in seen[-1], seen
         assert second.poll() is None  # waiting
         if end == "killed":
             first.send_signal(signal.SIGKILL)
