@@ -7,8 +7,11 @@ it ends (a crash, SIGKILL), so a dead holder never blocks anyone; the lock file
 is removed by the holder that lets go, and a waiter that finds its file gone or
 replaced locks the new one (no two holders at once, no stale files left by
 orderly runs; one left by a killed holder is simply locked again).
-:func:`lock_owner` names the process that holds a lock, where the system says
-(``/proc/locks``).
+:func:`hold_directory` locks a directory itself without waiting (a study's
+report directory: a second run is refused, :class:`LockBusy`) until
+:func:`release`. :func:`lock_owner` names the process that holds a lock, where
+the system says (``/proc/locks``). Either lock is shared within a process
+(counted) and closed in a forked child (it ends with its holder).
 
 Where ``flock`` is missing (Windows) or refused (some network file systems), the
 work goes on unlocked: a lock only saves repeated work here, the results are
@@ -27,7 +30,8 @@ from pathlib import Path
 
 log = logging.getLogger("mcrt.lock")
 
-#: Lock files held by this process: path -> [descriptor, holders].
+#: Locks held by this process: key (a lock file's path, or a directory's
+#: "dir:device:inode") -> [descriptor, holders].
 _HELD: dict[str, list[int]] = {}
 _GUARD = threading.Lock()
 
@@ -59,7 +63,7 @@ def waiting_lock(path: str | os.PathLike[str], waiting: str) -> Iterator[None]:
         yield
     finally:
         if entry is not None:
-            _release(name)
+            release(name)
 
 
 def _acquire(path: Path, waiting: str) -> int | None:
@@ -101,20 +105,64 @@ def _acquire(path: Path, waiting: str) -> int | None:
         os.close(fd)  # its holder removed it as it let go: lock the next one
 
 
-def _release(name: str) -> None:
-    """One holder in this process lets go of ``name``; the last one removes the
-    file (while still holding it, so that no waiter takes a file about to go)
-    and unlocks it."""
+class LockBusy(Exception):
+    """Another process holds the lock; ``holder`` says who (see :func:`lock_owner`)."""
+
+    def __init__(self, holder: str) -> None:
+        super().__init__(holder)
+        self.holder = holder
+
+
+def hold_directory(directory: str | os.PathLike[str], unlocked: str) -> str | None:
+    """Lock ``directory`` itself for this process, without waiting: an exclusive
+    ``flock`` on the directory (no file is written; the kernel drops it when the
+    process ends). Returns the key to :func:`release`; raises :class:`LockBusy`
+    when another process holds it; None, with a warning ending in ``unlocked``
+    (what then goes unguarded), where the file system cannot lock. A directory
+    this process holds already is shared (counted)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no flock
+        return None
+    try:
+        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError as error:
+        log.warning("cannot lock %s (%s): %s", directory, error.strerror, unlocked)
+        return None
+    info = os.fstat(fd)
+    key = f"dir:{info.st_dev}:{info.st_ino}"
     with _GUARD:
-        entry = _HELD.get(name)
+        if key in _HELD:
+            os.close(fd)
+            _HELD[key][1] += 1
+            return key
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            os.close(fd)
+            if isinstance(error, BlockingIOError):
+                raise LockBusy(lock_owner(info) or "another process") from None
+            log.warning("cannot lock %s (%s): %s", directory, error.strerror, unlocked)
+            return None
+        _HELD[key] = [fd, 1]
+    return key
+
+
+def release(key: str) -> None:
+    """One holder in this process lets go of the lock ``key``; the last one
+    unlocks it, and removes a lock file first (while still holding it, so that
+    no waiter takes a file about to go)."""
+    with _GUARD:
+        entry = _HELD.get(key)
         if entry is None:
             return
         entry[1] -= 1
         if entry[1] > 0:
             return
-        del _HELD[name]
-    with contextlib.suppress(OSError):
-        os.unlink(name)
+        del _HELD[key]
+    if not key.startswith("dir:"):
+        with contextlib.suppress(OSError):
+            os.unlink(key)
     os.close(entry[0])
 
 
@@ -165,4 +213,4 @@ def _command_line(pid: str) -> str:
     return text if len(text) <= 300 else text[:297] + "..."
 
 
-__all__ = ["lock_owner", "waiting_lock"]
+__all__ = ["LockBusy", "hold_directory", "lock_owner", "release", "waiting_lock"]

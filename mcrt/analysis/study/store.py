@@ -24,7 +24,6 @@ report directory:
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import logging
 import os
@@ -37,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.file_lock import lock_owner
+from ...core.file_lock import LockBusy, hold_directory, release
 from ...core.job import content_key
 from ...core.sampling import sampler_fingerprint
 from ...core.scene_files import scene_digest
@@ -161,9 +160,14 @@ class StudyState:
         state = cls(report / STATE_DIR, study_key(config),
                     study_command(config, report) if command is None else command)
         report.mkdir(parents=True, exist_ok=True)
-        held = _lock_directory(report)
+        try:
+            held = hold_directory(report, "a second run writing into it would not be refused")
+        except LockBusy as busy:
+            raise McrtError(f"{report} is in use by another study run ({busy.holder}); one run "
+                            f"at a time writes a report directory: wait for it to end, or give "
+                            f"this one another -o DIR") from None
         if held is not None:
-            state._unlock = weakref.finalize(state, _release, held)
+            state._unlock = weakref.finalize(state, release, held)
         try:
             state._keep_other_study()
             if restart:
@@ -346,79 +350,3 @@ def _free_name(parent: Path, name: str) -> Path:
         count += 1
         target = parent / f"{name}-{stamp}" if count == 1 else parent / f"{name}-{stamp}-{count}"
     return target
-
-
-# --------------------------------------------------------------------------- the lock
-
-#: Report directories locked by this process: (st_dev, st_ino) -> [descriptor, states].
-_HELD: dict[tuple[int, int], list[int]] = {}
-
-
-def _lock_directory(directory: Path) -> tuple[int, int] | None:
-    """Lock ``directory`` for this process (an exclusive ``flock`` on the directory
-    itself: no file is written, the kernel drops it when the process ends).
-
-    Refused (:class:`McrtError`) when another process holds it; None, with a
-    note, where the file system cannot lock. A directory this process holds
-    already is shared (counted; see :func:`_release`)."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows: no flock
-        return None
-    try:
-        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError as error:
-        log.warning("cannot lock %s (%s): a second run writing into it would not be refused",
-                    directory, error.strerror)
-        return None
-    info = os.fstat(fd)
-    held = (info.st_dev, info.st_ino)
-    if held in _HELD:
-        os.close(fd)
-        _HELD[held][1] += 1
-        return held
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        os.close(fd)
-        raise McrtError(f"{directory} is in use by another study run ({_holder(info)}); one "
-                        f"run at a time writes a report directory: wait for it to end, or "
-                        f"give this one another -o DIR") from None
-    except OSError as error:
-        os.close(fd)
-        log.warning("cannot lock %s (%s): a second run writing into it would not be refused",
-                    directory, error.strerror)
-        return None
-    _HELD[held] = [fd, 1]
-    return held
-
-
-def _release(held: tuple[int, int]) -> None:
-    """One state of this process lets go of a directory; the last one unlocks it."""
-    entry = _HELD.get(held)
-    if entry is None:
-        return
-    entry[1] -= 1
-    if entry[1] <= 0:
-        del _HELD[held]
-        os.close(entry[0])
-
-
-def _forget_locks() -> None:
-    """In a forked child: close the inherited descriptors (the parent's lock must
-    end with the parent, not live on in its children)."""
-    for fd, _ in _HELD.values():
-        with contextlib.suppress(OSError):
-            os.close(fd)
-    _HELD.clear()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_locks)
-
-
-def _holder(info: os.stat_result) -> str:
-    """Who holds the lock of the directory ``info`` describes: "PID n: its command
-    line" where the system says (:func:`~mcrt.core.file_lock.lock_owner`), else
-    "another process"."""
-    return lock_owner(info) or "another process"
