@@ -138,3 +138,44 @@ def test_a_near_mirror_stays_rough_under_a_point_light(tmp_path):
     planned = plan_scene(point).plan
     assert planned.on("glossy"), planned.effects["glossy"]
     assert "kept rough: point lights" in planned.effects["glossy"].reason
+
+
+POINT_LIGHT = """<emitter type="point"><point name="position" value="1,-2,3"/>
+  <rgb name="intensity" value="20"/></emitter>"""
+
+
+def test_direct_with_several_emitter_samples_of_a_delta_light_is_a_caveat(tmp_path):
+    """Mitsuba 3.9.1's ``direct`` weights each of its n emitter samples of a point,
+    spot or directional light by 1, not 1/n (mitsuba3 #1861): n times too bright.
+    The plan keeps the authored counts, so the image is ``mi.render``'s (5 SE),
+    and says so in a caveat, which ``mcrt render`` prints on its plan line; so
+    does ``soft_shadows=off``, which makes delta lights of area lights. The bug
+    itself: a point light over a diffuse ball leaves only the film positions random
+    and the same seed draws them alike, so 3 emitter samples give 3x the image of
+    one to float precision (1e-4); when a Mitsuba release fixes it, this fails and
+    the caveat can go."""
+    import mitsuba as mi
+    import numpy as np
+
+    def direct(samples: int, light: str) -> Path:
+        path = scene_file(tmp_path, BALL + light)
+        path.write_text(path.read_text().replace(
+            '<integrator type="path"/>',
+            f'<integrator type="direct"><integer name="emitter_samples" value="{samples}"/>'
+            f'</integrator>'))
+        return path
+
+    three = direct(3, POINT_LIGHT)
+    plan = plan_scene(three).plan
+    (caveat,) = plan.caveats
+    assert "(PointLight) 3 times too bright with emitter_samples 3" in caveat
+    assert "mitsuba3 #1861" in caveat and caveat in plan.summary()
+    assert z_score(planned_mean(three), mitsuba_mean(three)) < 5
+    means = [float(np.mean(mi.render(mi.load_file(str(direct(n, POINT_LIGHT))), spp=16,
+                                     seed=3))) for n in (1, 3)]
+    assert abs(means[1] / means[0] - 3) < 1e-4, means
+    assert not plan_scene(direct(1, POINT_LIGHT)).plan.caveats
+    area = direct(2, emitting_panel(""))
+    assert not plan_scene(area).plan.caveats  # area lights are weighted right
+    (caveat,) = plan_scene(area, overrides={"soft_shadows": False}).plan.caveats
+    assert "(SpotLight) 2 times too bright" in caveat

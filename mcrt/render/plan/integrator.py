@@ -5,6 +5,8 @@ objects, ``direct`` for everything else."""
 
 from __future__ import annotations
 
+import mitsuba as mi
+
 from .effects import Decisions, ScanFacts
 from .model import IntegratorSpec, listing
 from .nodes import integer, scalar, scalars
@@ -116,3 +118,29 @@ def _direct(facts: ScanFacts, author: AuthoredIntegrator,
             spec.update(explicit)
             reason = "direct lighting, sample counts as authored"
     return spec, reason
+
+
+def delta_weight_caveat(scene: mi.Scene, integrator: IntegratorSpec,
+                        author: AuthoredIntegrator) -> list[str]:
+    """Mitsuba 3.9.1's ``direct`` weights each of its ``emitter_samples`` n samples
+    of a point, spot, directional or projector light by 1, not 1/n (mitsuba3
+    #1861), so such lights render n times too bright, in ``mi.render`` too. The
+    plan keeps the sample counts (its image is ``mi.render``'s) and says so:
+    the caveat names the lights, the count and the fix."""
+    if author.replannable:
+        counts = [int(integrator.get("emitter_samples", 1))] \
+            if integrator["type"] == "direct" else []
+    else:
+        counts = [integer(leaf.props, key) for leaf in author.leaves() if leaf.kind == "direct"
+                  for key in ("emitter_samples", "shading_samples") if key in leaf.props]
+    n = max(counts, default=1)
+    if n <= 1:
+        return []
+    delta = sorted({e.class_name() for e in scene.emitters()
+                    if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)})
+    if not delta:
+        return []
+    return [f"Mitsuba 3.9.1's direct integrator renders delta lights ({listing(delta)}) "
+            f"{n} times too bright with emitter_samples {n}: it weights each of their "
+            f"samples 1, not 1/{n} (mitsuba3 #1861); mi.render gives the same image, "
+            f"emitter_samples 1 the right one (docs/effects-and-plan.md)"]

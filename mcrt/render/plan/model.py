@@ -96,6 +96,9 @@ class RenderPlan:
     subframes: int = 1
     subframe_times: list[float] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: Where the image is ``mi.render``'s but known wrong (a Mitsuba bug): said by
+    #: ``mcrt plan`` and in a render's plan line.
+    caveats: list[str] = field(default_factory=list)
     aperture_sample: bool = False       # the rendered sensor draws a 2D aperture sample
     wavelength_sample: bool = False     # a spectral variant draws the wavelengths (1D)
 
@@ -115,7 +118,7 @@ class RenderPlan:
         if not self.scene_integrator.startswith(kind):  # "path (default)", "moment(path)"
             text += (f"; integrator {kind} in place of the scene's {self.scene_integrator}: "
                      f"{self.integrator_reason}")
-        return text
+        return "; caveat: ".join([text, *self.caveats])
 
     def camera_dimensions(self) -> list[Dimension]:
         """Sampler calls a camera sample makes before the integrator runs."""
@@ -174,6 +177,7 @@ class RenderPlan:
             "streak_px": round(self.streak_px, 4),
             "motions": [m.to_dict() for m in self.motions],
             "notes": self.notes,
+            "caveats": self.caveats,
         }
         if self.coc_px is not None:
             out["coc_px"] = [round(c, 4) for c in self.coc_px]
@@ -198,6 +202,7 @@ class RenderPlan:
         lines.append(f"sampler:      {self.sampler}, {self.spp} spp")
         lines += self._describe_dimensions()
         lines += [f"note: {n}" for n in self.notes]
+        lines += [f"caveat: {c}" for c in self.caveats]
         return "\n".join(lines)
 
     def _describe_shutter(self) -> str:
