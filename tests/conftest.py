@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import queue
 import subprocess
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -265,3 +267,27 @@ def small_cornell(size: int = 32, sampler: str = "independent", spp: int = 16,
     if integrator is not None:
         scene["integrator"] = integrator
     return mi.load_dict(scene)
+
+
+def stream_lines(stream) -> queue.Queue:
+    """The lines of a child process's ``stream``, read on a thread (None at its end):
+    a test takes them with ``get(timeout=...)``, a bound against a hang."""
+    lines: queue.Queue = queue.Queue()
+
+    def read() -> None:
+        for line in stream:
+            lines.put(line)
+        lines.put(None)
+    threading.Thread(target=read, daemon=True).start()
+    return lines
+
+
+@pytest.fixture
+def by_value(request):
+    """The requesting test module's functions travel to Dask workers by value (the
+    workers need not import the tests)."""
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(request.module)
+    yield
+    cloudpickle.unregister_pickle_by_value(request.module)

@@ -14,12 +14,11 @@ import queue
 import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT
+from tests.conftest import ROOT, stream_lines
 
 pytestmark = [
     pytest.mark.slow,
@@ -52,18 +51,6 @@ def _env(tmp: Path) -> dict[str, str]:
     return {**os.environ, "MCRT_CACHE_DIR": str(tmp / "cache"), "OPENBLAS_NUM_THREADS": "1"}
 
 
-def _lines(stream) -> queue.Queue:
-    """The lines of ``stream``, read on a thread (None at its end)."""
-    lines: queue.Queue = queue.Queue()
-
-    def read() -> None:
-        for line in stream:
-            lines.put(line)
-        lines.put(None)
-    threading.Thread(target=read, daemon=True).start()
-    return lines
-
-
 def _until(lines: queue.Queue, text: str) -> list[str]:
     """The lines up to the first that holds ``text`` (all of them if none does)."""
     seen: list[str] = []
@@ -90,7 +77,7 @@ def test_a_second_reference_waits_for_the_first(tmp_path, end):
             [sys.executable, "-m", "mcrt", "reference", str(CORNELL), *defines, "--spp",
              str(SPP), "--spp-per-pass", str(PER_PASS), "-o", "second.exr"],
             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        notes = _lines(second.stderr)
+        notes = stream_lines(second.stderr)
         seen = _until(notes, "is rendering the same reference")
         assert seen and f"mcrt: note: another mcrt (PID {first.pid}: first.py) is rendering " \
             "the same reference: waiting for it, then taking its result" in seen[-1], seen

@@ -136,17 +136,6 @@ def _dies_first(folder: str, deaths: int, index: int) -> int:
     return 10 * index
 
 
-@pytest.fixture
-def by_value():
-    """Tasks defined here travel by value (workers need not import the tests)."""
-    import cloudpickle
-
-    module = sys.modules[__name__]
-    cloudpickle.register_pickle_by_value(module)
-    yield
-    cloudpickle.unregister_pickle_by_value(module)
-
-
 def test_a_task_whose_workers_keep_dying_is_submitted_again(tmp_path, caplog, by_value):
     """Task 0 kills the worker running it 5 times: Dask gives up on it after 4
     (``KilledWorker``: its allowed failures are 3); mcrt submits it again, with a

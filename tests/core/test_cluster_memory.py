@@ -10,7 +10,6 @@ passes the limit ends the job after Dask's 4 tries, in one line naming the limit
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -151,17 +150,6 @@ def _hog(index: int) -> int:
     blocks = [np.ones(16 << 20, np.uint8) for _ in range(64)]
     time.sleep(30)
     return index + len(blocks)
-
-
-@pytest.fixture
-def by_value():
-    """Tasks defined here travel by value (workers need not import the tests)."""
-    import cloudpickle
-
-    module = sys.modules[__name__]
-    cloudpickle.register_pickle_by_value(module)
-    yield
-    cloudpickle.unregister_pickle_by_value(module)
 
 
 def test_a_task_that_never_fits_its_workers_is_one_error_after_four_deaths(by_value,

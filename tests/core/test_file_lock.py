@@ -14,13 +14,13 @@ import queue
 import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
 
 from mcrt.core import file_lock
 from mcrt.core.file_lock import waiting_lock
+from tests.conftest import stream_lines
 
 #: A process that loads file_lock.py and runs ``BODY`` with ``lock`` (waiting_lock)
 #: and the lock file's path ``path``; its notes go to stderr.
@@ -57,18 +57,6 @@ def _start(code: str, path: Path) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _lines(stream) -> queue.Queue:
-    """The lines of ``stream``, read on a thread (None at its end)."""
-    lines: queue.Queue = queue.Queue()
-
-    def read() -> None:
-        for line in stream:
-            lines.put(line)
-        lines.put(None)
-    threading.Thread(target=read, daemon=True).start()
-    return lines
-
-
 def _next(lines: queue.Queue) -> str | None:
     return lines.get(timeout=60)  # (a bound against a hang, not a measurement)
 
@@ -82,7 +70,7 @@ def test_a_second_process_waits_for_the_holder(tmp_path, end):
         assert holder.stdout.readline() == "holding\n", holder.stderr.read()
         assert path.is_file()
         waiter = _start(WAITER, path)
-        notes = _lines(waiter.stderr)
+        notes = stream_lines(waiter.stderr)
         note = _next(notes)
         assert note == f"note: waiting for PID {holder.pid}: holder.py {path}\n", note
         assert waiter.poll() is None  # blocked on the lock
