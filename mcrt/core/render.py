@@ -42,7 +42,7 @@ from .engine import (
 from .executor import Executor, cluster_status, task_memory
 from .inputs import check_max_lanes, check_sampler, check_scene, check_seed, check_sensor, check_spp
 from .job import Checkpoint, Checkpointing, CheckpointPacer, Interrupted, Job, run_job
-from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes
+from .memory import STATS_BYTES_PER_LANE, film_bytes, moments_bytes, require_memory
 from .pass_replay import PassReplay
 from .progress import Progress
 from .sampling import make_sampler
@@ -301,6 +301,9 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
     # A sampler with per-lane state keeps folded passes to the usual size.
     fold_lanes = (max_lanes or MAX_LANES_PER_PASS) if keeps_lane_state(sampler) else None
     workers = task_memory(tasks.executor) if tasks is not None else None  # passes run there
+    if workers is not None:  # (this process's own memory was checked by the command)
+        require_memory(width * height, film_bytes(width * height, channels),
+                       f"a {width}x{height} render", available=workers, where=" on a Dask worker")
     run = PassRun(fitted_shape(width * height, spp, max_lanes, passes,
                                fixed_bytes=film_bytes(width * height, channels),
                                fold=accumulator.fold, fold_lanes=fold_lanes, available=workers))

@@ -145,6 +145,29 @@ def test_a_render_takes_passes_that_fit_its_workers_memory_limit(tmp_path, capsy
         assert np.array_equal(a[layer].view(np.uint32), b[layer].view(np.uint32)), layer
 
 
+def test_a_render_that_cannot_fit_its_workers_is_one_line_before_any_pass(tmp_path, capsys):
+    """`mcrt render --cluster` of a 2048x2048 film whose workers are limited to 300
+    MiB: a 1-sample pass (4 M lanes) fits this process but not a worker, so it is
+    refused in one line before any pass is sent, and no worker dies (the client
+    checked only its own memory, and four workers died before the error)."""
+    scene = tmp_path / "plane.xml"
+    scene.write_text(scene_xml('<shape type="rectangle"><bsdf type="diffuse"/></shape>'
+                               '<emitter type="constant"/>', size=2048))
+    executor = _limited("300MiB")
+    try:
+        code, _, err = run_cli(capsys, "render", str(scene), "--spp", "1", "-o",
+                               str(tmp_path / "there.exr"), "--cluster",
+                               executor.client.scheduler.address)
+        deaths = _memory_deaths(executor)
+    finally:
+        executor.close()
+    assert code == 2 and deaths == 0, err
+    (error,) = [line for line in err.splitlines() if line.startswith("mcrt: error:")]
+    assert error.startswith("mcrt: error: not enough memory for a 2048x2048 render: even its "
+                            "smallest pass (1 sample per pixel) needs about "), err
+    assert " MiB are available on a Dask worker; " in error, err
+
+
 def _hog(index: int) -> int:
     """A task that needs 1 GiB (touched, 16 MiB at a time), held for 30 s."""
     blocks = [np.ones(16 << 20, np.uint8) for _ in range(64)]
