@@ -7,7 +7,8 @@ Importing the package activates the ``llvm_ad_rgb`` variant when none is active
 and ``multisample``), so ``mi.load_dict({'type': 'jittered', ...})``
 works right away.
 Call :func:`register` again after switching variants; :func:`register_sampler`
-brings in a user's sampler (docs/extending.md).
+brings in a user's sampler (docs/extending.md), :func:`register_integrand` a user's
+integrand for ``mcrt integrate`` (docs/integrate.md).
 
 The import is kept cheap (about what ``import mitsuba`` and ``set_variant``
 cost): numpy, the adaptive renderer and the analysis modules are imported when
@@ -16,7 +17,7 @@ first used, not here.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ._gc import collection_held_back
 from ._platform import ensure_variant, initialise
@@ -59,6 +60,16 @@ def _multisample_integrator(props: mi.Properties) -> mi.Integrator:
     return integrator
 
 
+def register_integrand(name: str, function: Any, exact: float | None = None,
+                       **options: Any) -> str:
+    """Name a user's integrand ``f(x, y)`` for ``mcrt integrate NAME``: see
+    :func:`mcrt.analysis.integrands.register_integrand` (imported on the first call, with
+    numpy, which ``import mcrt`` does not import)."""
+    from .analysis.integrands import register_integrand as register_user_integrand
+
+    return register_user_integrand(name, function, exact, **options)
+
+
 def register() -> None:
     """Register mcrt's plugins with the active Mitsuba variant."""
     import mitsuba as mi
@@ -72,4 +83,5 @@ def register() -> None:
 
 register()
 
-__all__ = ["McrtError", "register", "register_sampler", "samplers", "__version__"]
+__all__ = ["McrtError", "register", "register_integrand", "register_sampler", "samplers",
+           "__version__"]

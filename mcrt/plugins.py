@@ -1,6 +1,7 @@
-"""Users' sampler plugins: the one place mcrt runs a user's code.
+"""Users' plugins: the one place mcrt runs a user's code.
 
-A plugin is a Python file that registers samplers when it runs::
+A plugin is a Python file that registers samplers (and integrands for ``mcrt integrate``,
+:func:`mcrt.register_integrand`) when it runs::
 
     # my_sampler.py
     import mcrt
@@ -9,13 +10,11 @@ A plugin is a Python file that registers samplers when it runs::
         ...
     mcrt.register_sampler("mine", points=jittered)
 
-and is loaded with ``mcrt --plugin my_sampler.py ...`` (any command; the
-option may be repeated), ``$MCRT_PLUGINS`` (paths separated by
-``os.pathsep``), a study's ``plugins = ["my_sampler.py"]`` or
-:func:`load_plugin` from Python. Installed packages bring samplers with an
-entry point in the group ``mcrt.samplers`` (:data:`ENTRY_POINT_GROUP`): its
-object is a module (importing it registers) or a callable (called with no
-arguments)::
+and is loaded with ``mcrt --plugin my_sampler.py ...`` (any command; the option may be
+repeated), ``$MCRT_PLUGINS`` (paths separated by ``os.pathsep``), a study's ``plugins =
+["my_sampler.py"]`` or :func:`load_plugin` from Python. Installed packages bring samplers
+with an entry point in the group ``mcrt.samplers`` (:data:`ENTRY_POINT_GROUP`): its object
+is a module (importing it registers) or a callable (called with no arguments)::
 
     [project.entry-points."mcrt.samplers"]
     mine = "my_package.samplers"             # or "my_package:register"
@@ -120,27 +119,26 @@ def _resolve(path: str | os.PathLike[str]) -> Path:
     return resolved
 
 
-def load_plugin(path: str | os.PathLike[str]) -> types.ModuleType:
-    """Run the plugin file ``path`` (once per process: a file loaded already is
-    not run again) and return its module; a one-line :class:`PluginError` if it
-    cannot be read or fails."""
+def load_plugin(path: str | os.PathLike[str], quiet: bool = False) -> types.ModuleType:
+    """Run the plugin file ``path`` (once per process: a file loaded already is not run
+    again) and return its module; a one-line :class:`PluginError` if it cannot be read or
+    fails. A note if it registered nothing, unless ``quiet`` (read for its functions)."""
     resolved = _resolve(path)
     if resolved in _LOADED:
         return _LOADED[resolved]
     module = _execute(resolved)
-    if not _NAMES[resolved]:
-        log.warning("plugin %s registered no sampler (call mcrt.register_sampler in it)",
-                    resolved)
+    if not _NAMES[resolved] and not quiet:
+        log.warning("plugin %s registered no sampler or integrand (call mcrt.register_sampler "
+                    "or mcrt.register_integrand in it)", resolved)
     return module
 
 
 def load_plugins(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
     """Load each plugin file of ``paths`` (in order); their resolved paths."""
-    loaded = []
+    paths = list(paths)
     for path in paths:
         load_plugin(path)
-        loaded.append(_resolve(path))
-    return loaded
+    return [_resolve(path) for path in paths]
 
 
 def loaded_plugins() -> list[Path]:
@@ -149,19 +147,20 @@ def loaded_plugins() -> list[Path]:
 
 
 def plugin_names(path: str | os.PathLike[str]) -> tuple[str, ...]:
-    """The sampler names the loaded plugin ``path`` registered."""
+    """The names the loaded plugin ``path`` registered (an integrand's: ``integrand NAME``)."""
     return _NAMES.get(Path(path).expanduser().resolve(), ())
 
 
 def unload_plugin(path: str | os.PathLike[str]) -> None:
-    """Forget a loaded plugin: its samplers are unregistered and its module
-    removed, so :func:`load_plugin` runs the (edited) file again."""
+    """Forget a loaded plugin: its samplers and integrands are unregistered and its
+    module removed, so :func:`load_plugin` runs the (edited) file again."""
     resolved = Path(path).expanduser().resolve()
     if resolved not in _LOADED:
         return
     for name in _NAMES.pop(resolved, ()):
         if name in registry.names() and registry.info(name).origin == str(resolved):
             registry.unregister(name)
+    registry.forget(str(resolved))
     del _LOADED[resolved]
     _VARIANTS.pop(resolved, None)
     _DIGESTS.pop(resolved, None)
@@ -195,10 +194,10 @@ def _execute(path: Path) -> types.ModuleType:
             try:
                 exec(code, module.__dict__)  # noqa: S102 - running the user's plugin is the point
             except (Exception, SystemExit) as error:
-                for registered in dict.fromkeys(names):
-                    if registered in registry.names() and registry.info(registered).kind in (
-                            "user", "points"):
+                for registered in dict.fromkeys(n for n in names if n in registry.names()):
+                    if registry.info(registered).kind in ("user", "points"):
                         registry.unregister(registered)
+                registry.forget(str(path))
                 raise PluginError(_failure(f"plugin {path}", error, str(path))) from None
     except BaseException:
         if previous is not None:

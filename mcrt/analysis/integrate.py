@@ -8,7 +8,8 @@ per-pixel seeding, so each pixel is an independent *trial* of the estimator
     I_hat = (1/N) sum_j f(x_j),     x_j = the N film samples of the pixel
 
 and the trials give its mean squared error ``MSE = mean_p (I_hat_p - I)^2``
-(bias included). Integrands (``INTEGRANDS``) have exact values:
+(bias included). mcrt's integrands (``INTEGRANDS``, :mod:`.integrands`) have exact values
+(a user's own may have an estimated one instead, whose error is subtracted: see there):
 
 * ``pi``: the indicator of the quarter disc ``x^2 + y^2 <= 1`` times 4, whose
   integral is pi (the lecture's dart-throwing estimate of pi);
@@ -66,6 +67,9 @@ import numpy as np
 from ..core.sampling import mitsuba_message, quiet_sampler_warnings
 from ..errors import McrtError, SamplerError
 from ..samplers.points import point_sets
+from .integrands import INTEGRANDS as INTEGRANDS  # (re-exported: the bench's own)
+from .integrands import Integrand, IntegrandError, integrand
+from .metrics import RESOLVED_FACTOR
 from .mse_interval import log_mse_variance, mse_interval
 from .significance import t_quantile
 
@@ -77,57 +81,6 @@ POINT_BUDGET = 1 << 22
 
 #: Default sample counts: 16 ... 65536 by powers of 4.
 DEFAULT_COUNTS = tuple(4 ** e for e in range(2, 9))
-
-
-@dataclass(frozen=True)
-class Integrand:
-    """A function on the unit square with a known integral."""
-
-    name: str
-    description: str
-    exact: float
-    function: Callable[[np.ndarray, np.ndarray], np.ndarray]  # f(x, y), float64 arrays
-
-    def estimates(self, points: np.ndarray) -> np.ndarray:
-        """Per-trial estimates ``mean_j f(x_j)`` of points ``(P, N, 2)`` -> ``(P,)``."""
-        x = points[..., 0].astype(np.float64)
-        y = points[..., 1].astype(np.float64)
-        return np.mean(self.function(x, y), axis=-1)
-
-
-def _quarter_disc(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return np.where(x * x + y * y <= 1.0, 4.0, 0.0)
-
-
-DISK_CENTRE = (0.5, 0.5)
-DISK_RADIUS = 0.4
-
-
-def _disk(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    dx, dy = x - DISK_CENTRE[0], y - DISK_CENTRE[1]
-    return (dx * dx + dy * dy <= DISK_RADIUS ** 2).astype(np.float64)
-
-
-GAUSSIAN_SIGMA = 0.2
-
-
-def _gaussian(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return np.exp(-((x - 0.5) ** 2 + (y - 0.5) ** 2) / (2.0 * GAUSSIAN_SIGMA ** 2))
-
-
-def _gaussian_integral(sigma: float) -> float:
-    one_d = sigma * math.sqrt(2.0 * math.pi) * math.erf(0.5 / (math.sqrt(2.0) * sigma))
-    return one_d * one_d
-
-
-INTEGRANDS: dict[str, Integrand] = {
-    "pi": Integrand("pi", "4 x indicator of the quarter disc x^2 + y^2 <= 1 (estimates pi)",
-                    math.pi, _quarter_disc),
-    "disk": Integrand("disk", f"indicator of the disc r = {DISK_RADIUS} around {DISK_CENTRE}",
-                      math.pi * DISK_RADIUS ** 2, _disk),
-    "gaussian": Integrand("gaussian", f"exp(-|x - c|^2 / (2 s^2)), c = (0.5, 0.5), "
-                          f"s = {GAUSSIAN_SIGMA}", _gaussian_integral(GAUSSIAN_SIGMA), _gaussian),
-}
 
 
 # --------------------------------------------------------------------------- statistics
@@ -288,6 +241,11 @@ class ConvergencePoint:
     seconds: float         # generating the points + evaluating all integrands, warm
     exact: float
     seed: int = 0          # the seed of this count's points
+    #: The standard error of ``exact`` when it was estimated (0: known exactly).
+    exact_error: float = 0.0
+    #: The integrand evaluated (:func:`time_samplers` evaluates it again); None: the one
+    #: ``integrand`` names.
+    definition: Integrand | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         # Identical estimates up to summation-order rounding: no sampling error, the MSE
@@ -308,6 +266,34 @@ class ConvergencePoint:
         scale = max(abs(self.exact), float(np.max(np.abs(self.estimates))))
         return float(np.ptp(self.estimates)) <= 1e-12 * scale
 
+    @property
+    def floor(self) -> float:
+        """``exact_error^2``: what an estimated exact value's own error adds to the
+        expected MSE (see :mod:`.integrands`); 0 for a known one."""
+        return self.exact_error ** 2
+
+    @property
+    def mse_excess(self) -> float:
+        """``mse - floor``: the MSE against the true integral (as a study's
+        :func:`~mcrt.analysis.metrics.mse_excess`; may be negative when unresolved)."""
+        return self.summary.mse - self.floor
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the MSE exceeds ``RESOLVED_FACTOR`` x the floor, which an estimated
+        exact value can resolve (always, for a known one)."""
+        return self.floor == 0.0 or self.summary.mse > RESOLVED_FACTOR * self.floor
+
+    @property
+    def se_log_excess(self) -> float:
+        """The standard error of ``ln mse_excess``: the MSE's, and the floor's own
+        (the estimate's squared error ``d^2`` varies by ``sqrt(2) floor`` for normal ``d``),
+        relative to the excess; the MSE's ``se_log`` when there is no floor."""
+        if self.floor == 0.0:
+            return self.summary.se_log
+        spread = math.hypot(self.summary.se_log * self.summary.mse, math.sqrt(2.0) * self.floor)
+        return spread / self.mse_excess if self.mse_excess > 0 else math.inf
+
 
 @dataclass
 class Convergence:
@@ -325,12 +311,13 @@ class Convergence:
     def fit(self, min_n: int = 1) -> SlopeFit:
         """Slope over the counts ``>= min_n``: weighted by the MSE's standard errors,
         or, for a deterministic sampler (no sampling error), an unweighted fit whose
-        standard error describes the scatter about the line."""
-        sel = [p for p in self.points if p.n >= min_n]
+        standard error describes the scatter about the line. Against an estimated exact
+        value, of the resolved counts' MSE less the floor (:attr:`ConvergencePoint.resolved`)."""
+        sel = [p for p in self.points if p.n >= min_n and p.resolved]
         if self.deterministic:
-            return fit_slope([p.n for p in sel], [p.summary.mse for p in sel])
-        return fit_slope([p.n for p in sel], [p.summary.mse for p in sel],
-                         [p.summary.se_log for p in sel], [p.trials for p in sel])
+            return fit_slope([p.n for p in sel], [p.mse_excess for p in sel])
+        return fit_slope([p.n for p in sel], [p.mse_excess for p in sel],
+                         [p.se_log_excess for p in sel], [p.trials for p in sel])
 
 
 def trials_for(n: int, max_trials: int = DEFAULT_TRIALS, budget: int = POINT_BUDGET) -> int:
@@ -366,11 +353,17 @@ def check_points(sampler: str, points: np.ndarray, what: str = "film coordinates
         raise PointsOutside(sampler, points, what)
 
 
-def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[int] = DEFAULT_COUNTS,
-                    max_trials: int = DEFAULT_TRIALS, budget: int = POINT_BUDGET, seed: int = 0,
-                    timed: bool = True, progress: Callable[[], None] | None = None,
+def run_convergence(sampler: str, integrands: Iterable[str | Integrand],
+                    counts: Sequence[int] = DEFAULT_COUNTS, max_trials: int = DEFAULT_TRIALS,
+                    budget: int = POINT_BUDGET, seed: int = 0, timed: bool = True,
+                    progress: Callable[[], None] | None = None,
                     **params) -> dict[str, Convergence]:
     """Run the bench for one sampler: every count, every integrand, the same points.
+
+    ``integrands``: names (mcrt's, or registered with
+    :func:`~mcrt.analysis.integrands.register_integrand`) or
+    :class:`~mcrt.analysis.integrands.Integrand` objects (e.g. from
+    :func:`~mcrt.analysis.integrands.make_integrand`); the results are keyed by name.
 
     For each requested count ``n`` the trials are pixels ``0 .. P-1`` with
     ``P = trials_for(n_eff, max_trials, budget)``; their film points
@@ -385,11 +378,12 @@ def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[in
     [0, 1) raise SamplerError (:func:`check_points`). ``progress()`` is called
     after each count.
     """
-    names = list(integrands)
-    unknown = [name for name in names if name not in INTEGRANDS]
-    if unknown:
-        raise McrtError(f"unknown integrand {unknown[0]!r}; choose one of: {', '.join(INTEGRANDS)}")
-    results = {name: Convergence(sampler, name) for name in names}
+    chosen: dict[str, Integrand] = {}
+    for spec in integrands:
+        item = integrand(spec)
+        if chosen.setdefault(item.name, item) is not item:
+            raise McrtError(f"two integrands are named {item.name!r}")
+    results = {name: Convergence(sampler, name) for name in chosen}
     for index, n_req in enumerate(counts):
         count_seed = (seed + index) % (1 << 32)  # fresh points per count: independent ln MSE
         try:
@@ -408,19 +402,23 @@ def run_convergence(sampler: str, integrands: Iterable[str], counts: Sequence[in
                 dr.sync_thread()
             start = time.perf_counter()
             points = point_sets(sampler, trials, n_req, seed=count_seed, **params)
-            estimates = {name: INTEGRANDS[name].estimates(points) for name in names}
+            try:
+                estimates = {name: item.estimates(points) for name, item in chosen.items()}
+            except IntegrandError:
+                check_points(sampler, points)  # points off the square: the sampler's fault
+                raise
             dr.sync_thread()
             seconds = time.perf_counter() - start
         if points.shape[1] != n:
             raise RuntimeError(f"{sampler}: expected {n} samples per pixel, got {points.shape[1]}")
         check_points(sampler, points)
-        for name in names:
-            integrand = INTEGRANDS[name]
+        for name, item in chosen.items():
             est = estimates[name]
             results[name].points.append(ConvergencePoint(
                 sampler=sampler, integrand=name, n_requested=int(n_req), n=n, trials=trials,
-                estimates=est, summary=mse_summary(est - integrand.exact), seconds=seconds,
-                exact=integrand.exact, seed=count_seed))
+                estimates=est, summary=mse_summary(est - item.exact), seconds=seconds,
+                exact=item.exact, seed=count_seed, exact_error=item.exact_error,
+                definition=item))
         if progress is not None:
             progress()
     return results
@@ -445,7 +443,7 @@ def time_samplers(convergences: Iterable[Convergence], rounds: int = 3, seed: in
                 with quiet_sampler_warnings():
                     values = point_sets(point.sampler, point.trials, point.n_requested,
                                         seed=point.seed, **params)
-                    INTEGRANDS[point.integrand].estimates(values)
+                    (point.definition or integrand(point.integrand)).estimates(values)
             return call
 
         samples = run_interleaved([case(p) for p in group], rounds, seed=seed + n_req,

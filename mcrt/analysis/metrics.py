@@ -49,6 +49,11 @@ from ..core.colour import LUMINANCE_WEIGHTS
 #: Default epsilon of :func:`rel_mse`: keeps dark pixels from dominating.
 REL_MSE_EPSILON = 1e-2
 
+#: An MSE below this multiple of its reference's noise floor (:func:`reference_noise_floor`;
+#: an estimated exact value's squared standard error in ``mcrt integrate``) cannot be
+#: measured reliably against that reference: it is flagged unresolved and left out of fits.
+RESOLVED_FACTOR = 2.0
+
 
 def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     image = np.asarray(image, dtype=np.float64)
@@ -238,7 +243,7 @@ def delta_e_2000(image: np.ndarray, reference: np.ndarray, white: float = 1.0,
     return float(np.mean(delta_e_2000_map(image, reference, white, reference_lab)))
 
 
-__all__ = ["BiasEstimate", "LUMINANCE_WEIGHTS", "REL_MSE_EPSILON", "bias", "delta_e_2000",
-           "delta_e_2000_map", "error_map", "luminance", "mse", "mse_excess",
+__all__ = ["BiasEstimate", "LUMINANCE_WEIGHTS", "REL_MSE_EPSILON", "RESOLVED_FACTOR", "bias",
+           "delta_e_2000", "delta_e_2000_map", "error_map", "luminance", "mse", "mse_excess",
            "reference_noise_floor", "rel_mse", "srgb_to_lab", "standard_error_map",
            "variance_map"]

@@ -135,7 +135,8 @@ def _add_global_options(parser: argparse.ArgumentParser, after_command: bool) ->
                        dest="plugins_after" if after_command else "plugins",
                        default=unset if after_command else None,
                        help="load a Python file that registers samplers "
-                            "(mcrt.register_sampler), before the command runs; repeatable "
+                            "(mcrt.register_sampler) or integrands (mcrt.register_integrand), "
+                            "before the command runs; repeatable "
                             "(also $MCRT_PLUGINS, paths separated by the OS path separator)")
     group.add_argument("--version", action="version", version=version_text(),
                        help="print the versions of mcrt, Mitsuba and Dr.Jit and exit")

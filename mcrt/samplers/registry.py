@@ -130,6 +130,31 @@ def default_origin(fallback: str = "") -> str:
     return _SOURCES[-1].origin if _SOURCES else fallback
 
 
+#: Registries beside this one that plugins add to (mcrt's integrands): the function of
+#: each that forgets what an origin registered there (see :func:`forget`).
+_BESIDE: dict[str, Callable[[str], None]] = {}
+
+
+def note_beside(kind: str, name: str, forget_origin: Callable[[str], None]) -> str:
+    """A registration in a registry beside this one (``kind``: ``"integrand"``) by the
+    plugin running now: listed among its names as ``"KIND NAME"`` (never a sampler's name),
+    and ``forget_origin(origin)`` kept for :func:`forget`. Returns the plugin's origin, ""
+    when none is running (the other registry checks its own names)."""
+    _BESIDE[kind] = forget_origin
+    if not _SOURCES:
+        return ""
+    _SOURCES[-1].registered.append(f"{kind} {name}")
+    _SOURCE_ORIGINS.add(_SOURCES[-1].origin)
+    return _SOURCES[-1].origin
+
+
+def forget(origin: str) -> None:
+    """Remove what ``origin`` (a plugin unloaded, or failing) registered in the registries
+    beside this one (:func:`note_beside`); its samplers are the plugin loader's to remove."""
+    for forget_origin in _BESIDE.values():
+        forget_origin(origin)
+
+
 def _first_line(text: str | None) -> str:
     lines = [line.strip() for line in (text or "").strip().splitlines() if line.strip()]
     return lines[0] if lines else ""

@@ -221,7 +221,7 @@ def test_integrate_command(tmp_path, capsys):
     (["integrate", "pi", "--sampler", "nosuch"], "unknown sampler"),
     (["integrate", "pi", "--min-n", "256", "--max-n", "16"], "larger than"),
     (["integrate", "pi", "--sampler", "jittered,jittered"], "twice"),
-    (["integrate", "cube"], "invalid choice"),
+    (["integrate", "cube"], "unknown integrand 'cube'; choose one of: pi, disk, gaussian"),
     (["integrate", "pi", "--trials", "1"], "--trials"),
 ])
 def test_integrate_command_errors_are_one_line(tmp_path, capsys, argv, message):

@@ -31,11 +31,7 @@ import numpy as np
 
 from ...core.provenance import CSV_COLUMNS as CSV_PROVENANCE
 from ..aliasing import DEFAULT_CELLS, DEFAULT_CUTOFF, MIN_SIZE, UNMEASURED, Z_THRESHOLD
-from ..metrics import REL_MSE_EPSILON
-
-#: A cell whose MSE is below this multiple of the reference's noise floor cannot
-#: be measured reliably against that reference: it is flagged and left out of fits.
-RESOLVED_FACTOR = 2.0
+from ..metrics import REL_MSE_EPSILON, RESOLVED_FACTOR
 
 Show = Literal["text", "count", "value", "sd", "se", "interval", "z", "flag"]
 
