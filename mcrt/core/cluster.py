@@ -45,9 +45,11 @@ from ..errors import McrtError
 from .dask_settings import SILENT, DaskSettings
 from .environ import env_number
 from .memory import reuse_freed_memory
+from .provenance import source_digest
 from .scene_files import SceneSource, describe
 from .worker_memory import install as limit_worker_memory
 from .worker_memory import memory_kill, workers_available
+from .worker_software import identity, mismatch
 
 log = logging.getLogger("mcrt.cluster")
 
@@ -102,6 +104,7 @@ class WorkerSetup(WorkerPlugin):
         import mcrt
 
         mcrt.register()
+        source_digest()  # (cached: the code this worker imported, see worker_software)
         if self.plugins:  # before any task builds a sampler
             from ..plugins import install_worker_state
 
@@ -145,7 +148,11 @@ class DaskExecutor:
         self._none_since: float | None = None  # when the last worker was seen to go
         self._noted = 0.0                   # when the last "waiting for workers" note went
         if variant:
-            self._setup_workers()
+            try:
+                self._setup_workers()
+            except BaseException:  # (e.g. workers of other software: let go of them)
+                self.close()
+                raise
 
     def _setup_workers(self) -> None:
         """(Re-)register :class:`WorkerSetup` when the user's samplers changed since
@@ -159,8 +166,13 @@ class DaskExecutor:
         try:
             self.client.register_plugin(WorkerSetup(self._variant, self._threads,
                                                     plugins.worker_state()))
+            # Hand-started workers may run other code (a local cluster's start from ours).
+            found = self.client.run(identity) if self.cluster is None else {}
         except _LOST as error:
             raise self._lost_scheduler(error) from None
+        problem = mismatch(identity(), found)
+        if problem:
+            raise McrtError(problem)
         self._plugins = key
 
     @classmethod

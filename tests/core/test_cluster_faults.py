@@ -324,3 +324,53 @@ def test_no_worker_coming_back_is_one_error_naming_the_workers(tmp_path, cache, 
     resumed = get_reference(CORNELL, PARAMS, spp=256, spp_per_pass=8)
     assert resumed.resumed_passes >= 1
     same_stats(resumed, get_reference(CORNELL, PARAMS, spp=256, spp_per_pass=8, cache=False))
+
+
+@pytest.mark.skipif(not DASK.exists(), reason="no dask command")
+def test_a_worker_running_other_mcrt_code_is_refused_in_one_line(tmp_path):
+    """A hand-started worker that imported another mcrt (here: a copy of this one
+    with one line changed, first on its PYTHONPATH) is refused before any task
+    runs, in one line naming it and both source digests; a worker of this
+    install is accepted (the other tests here use them)."""
+    import shutil
+
+    from distributed import Client
+
+    from mcrt.core.provenance import source_digest
+
+    copy = tmp_path / "other"
+    shutil.copytree(ROOT / "mcrt", copy / "mcrt", ignore=shutil.ignore_patterns("__pycache__"))
+    with (copy / "mcrt" / "_version.py").open("a") as file:
+        file.write("# another build\n")
+    scheduler, address = _scheduler(tmp_path)
+    worker = subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1"],
+                              env={**os.environ, "PYTHONPATH": str(copy)},
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        with Client(address, timeout=30) as watcher:
+            watcher.wait_for_workers(1, timeout=60)
+            (where,) = watcher.nthreads()
+        with pytest.raises(McrtError) as refused:
+            DaskExecutor.connect(address)
+    finally:
+        _stop(scheduler, worker)
+    message = str(refused.value)
+    assert "\n" not in message
+    assert message.startswith(f"the Dask worker at {where} runs other software than this mcrt: "
+                              f"mcrt source "), message
+    assert message.endswith(f" where this one has {source_digest()}; its renders would not be "
+                            f"this mcrt's bits: restart the workers from this install (a worker "
+                            f"keeps the code it imported when it started)"), message
+
+
+def test_the_software_line_names_at_most_three_workers_and_what_differs():
+    from mcrt.core.worker_software import mismatch
+
+    here = {"mcrt_source": "aaaa", "mitsuba_version": "3.9.1", "drjit_version": "1.5.0"}
+    old = {**here, "mitsuba_version": "3.9.0"}
+    workers = {f"tcp://w{i}:1": (old if i % 2 else here) for i in range(10)}
+    assert mismatch(here, {"tcp://w0:1": here, "tcp://w2:1": here}) is None
+    line = mismatch(here, workers)
+    assert line is not None and line.startswith(
+        "5 of 10 Dask workers run other software than this mcrt (tcp://w1:1, tcp://w3:1, "
+        "tcp://w5:1 and 2 more; the first: Mitsuba 3.9.0 where this one has 3.9.1); "), line
