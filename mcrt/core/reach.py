@@ -35,6 +35,12 @@ from .packed import Packed
 
 #: Targets (columns, rows) one lane gathers for.
 BLOCK = (2, 2)
+#: Sources a lane's kernel names one by one (every filter of Mitsuba's defaults: a
+#: lanczos' 3-pixel reach gives 8 x 8); a wider filter's are visited by a symbolic
+#: loop, in the same order with the same arithmetic (the same bits), so that its
+#: kernel does not grow with the reach squared: a tent of radius 8 took 11 s to
+#: compile, one of radius 20 minutes, where ``mi.render`` takes a fraction of one.
+UNROLLED_SOURCES = 64
 
 
 @dataclass
@@ -54,11 +60,14 @@ class FilterReach:
 
     def __init__(self, rfilter: mi.ReconstructionFilter, size: tuple[int, int],
                  origin: tuple[int, int], grid: tuple[int, int],
-                 grid_origin: tuple[int, int], block: tuple[int, int] = BLOCK) -> None:
+                 grid_origin: tuple[int, int], block: tuple[int, int] = BLOCK,
+                 unrolled: int | None = None) -> None:
         self.rfilter = rfilter
         self.size, self.origin, self.grid, self.grid_origin = size, origin, grid, grid_origin
         self.reach = math.ceil(rfilter.radius() + 0.5) - 1  # a sample lies in [0, 1) of its pixel
         self.block = block
+        #: At most this many sources are named one by one (None: UNROLLED_SOURCES).
+        self.unrolled = UNROLLED_SOURCES if unrolled is None else unrolled
 
     def sums(self, packed: Packed, group: int, outputs: int,
              terms: Any) -> list[TargetSums]:
@@ -82,6 +91,13 @@ class FilterReach:
             index.append(mi.UInt32((first.y + j) * w + first.x + i))
             valid.append((first.x + i < w) & (first.y + j < h))
         centre = mi.Point2f(first + mi.Vector2i(self.origin)) + 0.5  # of slot (0, 0)
+        zeros = [dr.zeros(mi.Float64, cols * rows) for _ in range(len(slots) * outputs)]
+        span = (bw + 2 * r, bh + 2 * r)  # sources per row, rows
+        if span[0] * span[1] > self.unrolled:
+            looped = self._looped(packed, group, outputs, terms, first, centre, slots, span)
+            totals = self._over_samples(looped, group, zeros)
+            return [TargetSums(index[s], valid[s], totals[s * outputs:(s + 1) * outputs])
+                    for s in range(len(slots))]
         # Sources by (sx, sy) relative to the block's first target, in the order every
         # target adds them: source = target - offset, offsets ascending (dy, then dx).
         sources = []
@@ -111,14 +127,54 @@ class FilterReach:
                         out[s * outputs + c] = out[s * outputs + c] + term
             return (k + 1, *out)
 
-        zeros = [dr.zeros(mi.Float64, cols * rows) for _ in range(len(slots) * outputs)]
-        if group == 1:
-            totals = list(body(mi.UInt32(0), *zeros)[1:])
-        else:
-            state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group, body)
-            totals = list(state[1:])
+        totals = self._over_samples(body, group, zeros)
         return [TargetSums(index[s], valid[s], totals[s * outputs:(s + 1) * outputs])
                 for s in range(len(slots))]
+
+    @staticmethod
+    def _over_samples(body: Any, group: int, zeros: list[Any]) -> list[Any]:
+        """``body(k, *totals)`` for each source pixel's sample k in turn."""
+        if group == 1:
+            return list(body(mi.UInt32(0), *zeros)[1:])
+        state: Any = dr.while_loop((mi.UInt32(0), *zeros), lambda k, *s: k < group, body)
+        return list(state[1:])
+
+    def _looped(self, packed: Packed, group: int, outputs: int, terms: Any, first: Any,
+                centre: Any, slots: list[tuple[int, int]], span: tuple[int, int]) -> Any:
+        """The body of :meth:`sums` for a wide filter: source ``n`` of the same
+        order (``sy`` then ``sx`` descending) in a symbolic loop, each slot adding
+        the same terms where the source is in its reach and left as it was
+        elsewhere, so every target's sums are the unrolled body's bits."""
+        (bw, bh), r = self.block, self.reach
+        gw, gh = self.grid
+        shift = (self.origin[0] - self.grid_origin[0], self.origin[1] - self.grid_origin[1])
+
+        def body(k: Any, *totals: Any) -> tuple[Any, ...]:
+            def source(n: Any, *out_: Any) -> tuple[Any, ...]:
+                out = list(out_)
+                row = n // span[0]
+                sx = mi.Int32(bw - 1 + r) - mi.Int32(n - row * span[0])
+                sy = mi.Int32(bh - 1 + r) - mi.Int32(row)
+                g = first + mi.Vector2i(sx + shift[0], sy + shift[1])
+                inside = (g.x >= 0) & (g.x < gw) & (g.y >= 0) & (g.y < gh)
+                base = mi.UInt32(dr.select(inside, g.y * gw + g.x, 0)) * group
+                *values, x, y = packed.gather(base + k, inside)
+                use = inside & ~dr.isnan(x)
+                fx = [self.rfilter.eval(centre.x + i - x) for i in range(bw)]
+                fy = [self.rfilter.eval(centre.y + j - y) for j in range(bh)]
+                for s, (i, j) in enumerate(slots):
+                    near = (dr.abs(sx - i) <= r) & (dr.abs(sy - j) <= r)
+                    weight = dr.select(use, fx[i] * fy[j], 0.0)
+                    for c, term in enumerate(terms(weight, values)):
+                        out[s * outputs + c] = dr.select(near, out[s * outputs + c] + term,
+                                                         out[s * outputs + c])
+                return (n + 1, *out)
+
+            state: Any = dr.while_loop((mi.UInt32(0), *totals),
+                                       lambda n, *s: n < span[0] * span[1], source)
+            return (k + 1, *state[1:])
+
+        return body
 
 
 def dense(slots: list[TargetSums], size: int) -> list[mi.Float64]:
