@@ -170,7 +170,23 @@ def supported_film(film: mi.Film) -> mi.Film:
         raise McrtError(f"mcrt renders hdrfilm films (RGB, luminance or XYZ channels); this "
                         f"scene's film is a {film.class_name()}: give it an hdrfilm, or "
                         f"render it with mi.render")
+    check_rfilter(film)
     return film
+
+
+def check_rfilter(film: mi.Film, where: str = "") -> None:
+    """Refuse a reconstruction filter of no width (a ``gaussian`` of ``stddev`` 0
+    or below, a ``tent`` of ``radius`` 0, a ``lanczos`` of 0 ``lobes``): Mitsuba
+    takes it, then weighs no sample, so its image is black or NaN, and a negative
+    width hangs ``mi.render``."""
+    radius = float(film.rfilter().radius())
+    if radius > 0 and radius < float("inf"):
+        return
+    described = " ".join(str(film.rfilter()).split())
+    raise McrtError(f"{where}the film's reconstruction filter has radius {radius:g} "
+                    f"({described}): it gives no sample a weight (mi.render makes such an "
+                    f"image black or NaN, and hangs on a negative radius); give it a "
+                    f"positive width (gaussian stddev, tent radius, lanczos lobes)")
 
 
 def film_values(film: mi.Film, samples: CameraSamples) -> list[Any]:

@@ -11,6 +11,7 @@ import pytest
 from mcrt.core.engine import PassRun, pass_shape, run_passes
 from mcrt.core.filtered import FilteredStats
 from mcrt.core.render import render_film, render_stats
+from mcrt.errors import McrtError
 from mcrt.io import read_exr
 from tests.conftest import ROOT, run_cli
 
@@ -148,3 +149,27 @@ def test_study_accepts_filtered_scenes(tmp_path):
                     f'params = {{ filter = "gaussian", width = 32, height = 32 }}\n')
     config = load_config(toml)
     assert len(config.scenes) == 1
+
+
+@pytest.mark.parametrize("rfilter", [
+    '<rfilter type="gaussian"><float name="stddev" value="0"/></rfilter>',
+    '<rfilter type="gaussian"><float name="stddev" value="-1"/></rfilter>',
+    '<rfilter type="tent"><float name="radius" value="0"/></rfilter>',
+    '<rfilter type="lanczos"><integer name="lobes" value="0"/></rfilter>',
+])
+def test_a_filter_of_no_width_is_refused_in_one_line(tmp_path, capsys, rfilter):
+    """Mitsuba takes a filter of no width and weighs no sample with it: stddev 0
+    made an all-NaN image, a tent of radius 0 or lanczos of 0 lobes a black one
+    (mcrt wrote them, exit 0), and a negative stddev a traceback (mi.render
+    hangs). Every command refuses them before any work, as render_film does."""
+    scene = tmp_path / "flat.xml"
+    scene.write_text(SPHERE.read_text().replace('<rfilter type="$filter"/>', rfilter))
+    for command in (["render"], ["render", "--adaptive"], ["reference", "--spp", "16"],
+                    ["plan"]):
+        out = [] if command == ["plan"] else ["-o", str(tmp_path / "out")]
+        code, _, stderr = run_cli(capsys, *command, str(scene), *out)
+        assert code == 2 and "Traceback" not in stderr, stderr
+        assert stderr.count("\n") == 1 and "reconstruction filter has radius" in stderr
+    assert not (tmp_path / "out.exr").exists()
+    with pytest.raises(McrtError, match="gives no sample a weight"):
+        render_film(mi.load_file(str(scene)), "independent", spp=1)

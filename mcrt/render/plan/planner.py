@@ -14,7 +14,7 @@ from pathlib import Path
 
 import mitsuba as mi
 
-from ...core.engine import sampling_integrator
+from ...core.engine import check_rfilter, sampling_integrator
 from ...core.sampling import sampler_name
 from ...errors import SceneError
 from ..motion import SUBFRAME_STEP_PX
@@ -92,6 +92,7 @@ def _check_film(scene: mi.Scene, path: str | Path) -> None:
         raise SceneError(f"{path}: the film has {width}x{height} pixels; an image needs at "
                          f"least 1x1 (check the film's width and height, or the $parameters "
                          f"that set them)")
+    check_rfilter(film, f"{path}: ")
 
 
 def _instantiate(desc: SceneDescription) -> mi.Scene:
