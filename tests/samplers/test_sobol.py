@@ -255,8 +255,12 @@ def _cornell(name: str, params: dict) -> mi.Scene:
 
 
 def test_mcrt_fills_in_the_film_width():
-    """A scene's zsobol without `width` renders through mcrt, which knows the film."""
+    """A scene's zsobol without `width` renders through mcrt, which knows the film:
+    the image of a zsobol given the film's width, and the scene's own sampler is
+    left as it was (renders work on a clone)."""
     scene = _cornell("zsobol", {})
     image = render_film(scene, spp=16, seed=3).image
     assert np.isfinite(image).all()
-    assert scene.sensors()[0].sampler().width == 16
+    given = render_film(_cornell("zsobol", {"width": 16}), spp=16, seed=3).image
+    assert np.array_equal(image.view(np.uint32), given.view(np.uint32))
+    assert scene.sensors()[0].sampler().width == 0
