@@ -129,3 +129,27 @@ def test_an_efficiency_ratio_is_printed_to_the_digits_its_interval_supports():
     assert _ratio_cell(wide) == "11 [2.8, 48]"
     field = next(f for f in CELL_COLUMNS if f.name == "efficiency_ratio")
     assert _show(field, wide) == "11 [2.8, 48]"
+
+
+def test_no_slope_against_time_where_the_times_do_not_tell_the_sample_counts_apart():
+    """A render whose fixed cost dwarfs its sampling takes about as long at 4 as at
+    64 spp: the slope of the error against such times was noise over noise (-40 to
+    -182 on a thin-lens crop). Where the time intervals of the fewest- and the
+    most-sample cells overlap the slope against time is NaN; the slope against spp
+    stays; separated times give both."""
+    from mcrt.analysis.study import fit_sampler
+
+    def cells(times: list[tuple[float, float, float]]) -> list[dict]:
+        return [{"scene": "s", "sampler": "j", "resolved": True, "spp": spp, "seconds": t,
+                 "seconds_low": low, "seconds_high": high, "mse_floor": 0.0,
+                 "per_seed": [{"mse": 1.0 / spp}, {"mse": 1.1 / spp}], "efficiency": 1.0,
+                 "times": [t]}
+                for spp, (low, t, high) in zip((4, 16, 64), times, strict=True)]
+
+    flat = fit_sampler("s", "j", cells([(9e-3, 10e-3, 11e-3), (9.5e-3, 10.2e-3, 11e-3),
+                                        (10e-3, 10.5e-3, 11.5e-3)]))
+    assert math.isnan(flat["slope_seconds"]) and math.isnan(flat["slope_seconds_low"])
+    assert math.isclose(flat["slope_spp"], -1.0, rel_tol=1e-9)
+    apart = fit_sampler("s", "j", cells([(9e-3, 10e-3, 11e-3), (35e-3, 40e-3, 45e-3),
+                                         (150e-3, 160e-3, 170e-3)]))
+    assert math.isclose(apart["slope_seconds"], -1.0, rel_tol=1e-9)

@@ -201,7 +201,9 @@ FIT_FIELDS: tuple[Field, ...] = (
     Field("slope_spp_high"),
     Field("intercept_spp"),
     Field("r2_spp"),
-    Field("slope_seconds", "the same against log10(seconds), each cell at its median time",
+    Field("slope_seconds", "the same against log10(seconds), each cell at its median time; "
+                           "NaN where the time intervals of the cells with the fewest and "
+                           "the most samples overlap (the times do not tell them apart)",
           column=Column("slope vs time [95%]", "interval")),
     Field("slope_seconds_se"),
     Field("slope_seconds_low"),
