@@ -70,8 +70,12 @@ def test_a_cut_out_under_a_point_light_keeps_the_scenes_path(tmp_path):
           <bsdf type="diffuse"/></bsdf></shape>""")
     plan = plan_scene(path).plan
     assert plan.integrator == {"type": "path", "max_depth": -1}
-    assert plan.integrator_reason.startswith("cut-out BSDFs (leaf)")
-    assert "docs/mask-path-bias.md" in plan.integrator_reason
+    assert plan.integrator_reason.startswith("the scene's path is kept for its cut-out BSDFs "
+                                             "(leaf)")
+    (caveat,) = plan.caveats  # on the render's plan line too, not only in mcrt plan
+    assert caveat.startswith("Mitsuba 3.9's path renders the sampled light that cut-out BSDFs "
+                             "(leaf) reflect too dark") and "mask-path-bias.md" in caveat
+    assert f"caveat: {caveat}" in plan.summary()
     assert z_score(planned_mean(path), mitsuba_mean(path)) < 5
 
 
@@ -113,8 +117,10 @@ def test_a_cut_out_in_a_scene_with_indirect_light_is_flagged_too(tmp_path):
           <bsdf type="diffuse"/></bsdf></shape>""")
     plan = plan_scene(path).plan
     assert plan.on("indirect") and plan.integrator["type"] == "path"
-    assert plan.integrator_reason.startswith("indirect light; cut-out BSDFs (grille)")
-    assert "docs/mask-path-bias.md" in plan.integrator_reason
+    assert plan.integrator_reason == "indirect light"
+    (caveat,) = plan.caveats
+    assert "cut-out BSDFs (grille) reflect too dark" in caveat, caveat
+    assert f"caveat: {caveat}" in plan.summary()
 
 
 def _near_mirror(light: str) -> str:

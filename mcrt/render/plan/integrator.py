@@ -27,8 +27,6 @@ def choose_integrator(facts: ScanFacts, author: AuthoredIntegrator,
         spec, reason = _cut_out_path(facts, author)
     elif d.on("indirect"):
         spec, reason = _indirect(author)
-        if facts.scan.cut_outs:  # path all the same: the image is mi.render's, said so
-            reason += f"; {_cut_out_bias(facts)}"
     elif bounce:
         spec, reason = _distribution(facts, d, bounce)
     else:
@@ -72,18 +70,30 @@ def _cut_out_path(facts: ScanFacts, author: AuthoredIntegrator) -> tuple[Integra
     a cut-out (``mask``) reflects from a sampled emitter by its opacity twice, a
     bias (``direct``, ``prb`` and ``distribution`` weight it once, the analytic
     value: docs/mask-path-bias.md), so no shorter integrator renders the image
-    ``mi.render`` gives; the reason says so."""
+    ``mi.render`` gives; :func:`cut_out_caveat` says so."""
     spec: IntegratorSpec = {"type": "path", "max_depth": author.max_depth}
     if "rr_depth" in author.props:
         spec["rr_depth"] = integer(author.props, "rr_depth")
-    return spec, _cut_out_bias(facts, "the scene's path is kept, so ")
+    return spec, (f"the scene's path is kept for its cut-out BSDFs "
+                  f"({listing(facts.scan.cut_outs)}): no other integrator gives mi.render's image")
 
 
-def _cut_out_bias(facts: ScanFacts, kept: str = "") -> str:
-    masks = listing(facts.scan.cut_outs)
-    return (f"cut-out BSDFs ({masks}): {kept}the image is mi.render's, which Mitsuba 3.9's "
-            f"path makes too dark there (opacity^2 in place of opacity for sampled light: "
-            f"docs/mask-path-bias.md)")
+def cut_out_caveat(facts: ScanFacts, integrator: IntegratorSpec,
+                   author: AuthoredIntegrator) -> list[str]:
+    """Where ``path`` renders a scene with cut-out BSDFs (``mask``), planned or as
+    authored: Mitsuba 3.9's ``path`` makes the sampled light they reflect too dark
+    (docs/mask-path-bias.md), in ``mi.render`` too; the plan keeps that image and
+    says so in a caveat (a render's plan line included, not only ``mcrt plan``)."""
+    if not facts.scan.cut_outs:
+        return []
+    kinds = {str(integrator["type"])} if author.replannable else \
+        {leaf.kind for leaf in author.leaves()}
+    if "path" not in kinds:
+        return []
+    return [f"Mitsuba 3.9's path renders the sampled light that cut-out BSDFs "
+            f"({listing(facts.scan.cut_outs)}) reflect too dark (opacity^2 in place of "
+            f"opacity); mi.render gives the same image, prb (or direct, for direct light) "
+            f"the right one (docs/mask-path-bias.md)"]
 
 
 def _distribution(facts: ScanFacts, d: Decisions, bounce: int) -> tuple[IntegratorSpec, str]:

@@ -21,7 +21,7 @@ from ..motion import SUBFRAME_STEP_PX
 from ..scene import SceneDescription, read_scene
 from .edits import bake_pose, edit_built, edit_description, name_area_lights, rendered_camera
 from .effects import ScanFacts, SceneFacts, decide_described, decide_measured
-from .integrator import choose_integrator, delta_weight_caveat
+from .integrator import choose_integrator, cut_out_caveat, delta_weight_caveat
 from .model import RenderPlan, check_overrides
 from .nodes import integer
 from .planned import PlannedScene
@@ -75,7 +75,8 @@ def plan_scene(path: str | Path, params: dict[str, str] | None = None,
         motions=decisions.motions,
         streak_px=streak if math.isfinite(streak) else float(spp) * step_px,
         coc_px=decisions.coc_px, notes=notes,
-        caveats=delta_weight_caveat(scene, integrator, author),
+        caveats=(cut_out_caveat(facts, integrator, author)
+                 + delta_weight_caveat(scene, integrator, author)),
         aperture_sample=bool(scene.sensors()[0].needs_aperture_sample()),
         wavelength_sample=bool(mi.is_spectral))
     planned = PlannedScene(plan, scene, decisions.motions, step_px)
