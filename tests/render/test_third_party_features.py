@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mcrt.render.plan import plan_scene
+from tests.conftest import scene_xml
 from tests.render.test_third_party_scenes import mitsuba_mean, planned_mean, z_score
 
 CAMERA = """<integrator type="path"/>
@@ -121,6 +122,27 @@ def test_a_cut_out_in_a_scene_with_indirect_light_is_flagged_too(tmp_path):
     (caveat,) = plan.caveats
     assert "cut-out BSDFs (grille) reflect too dark" in caveat, caveat
     assert f"caveat: {caveat}" in plan.summary()
+
+
+def test_the_cut_out_caveat_follows_the_path_that_renders(tmp_path):
+    """The caveat goes with the path that renders the cut-out, as authored too (an
+    aov wrapping path is kept as authored), and not with a path of max_depth 1
+    (no light sampled) nor with direct."""
+    body = """
+      <emitter type="point"><point name="position" value="1,-2,3"/>
+        <rgb name="intensity" value="20"/></emitter>
+      <shape type="rectangle"><bsdf type="mask" id="leaf"><float name="opacity" value="0.5"/>
+          <bsdf type="diffuse"/></bsdf></shape>"""
+    cases = {'<integrator type="aov"><string name="aovs" value="dd.y:depth"/>'
+             '<integrator type="path"/></integrator>': 1,
+             '<integrator type="path"><integer name="max_depth" value="1"/></integrator>': 0,
+             '<integrator type="direct"/>': 0}
+    for integrator, caveats in cases.items():
+        path = tmp_path / f"s{caveats}{len(integrator)}.xml"
+        path.write_text(scene_xml(body, integrator=integrator))
+        plan = plan_scene(path).plan
+        assert len([c for c in plan.caveats if "cut-out BSDFs (leaf)" in c]) == caveats, \
+            (integrator, plan.caveats)
 
 
 def _near_mirror(light: str) -> str:

@@ -86,9 +86,12 @@ def cut_out_caveat(facts: ScanFacts, integrator: IntegratorSpec,
     says so in a caveat (a render's plan line included, not only ``mcrt plan``)."""
     if not facts.scan.cut_outs:
         return []
-    kinds = {str(integrator["type"])} if author.replannable else \
-        {leaf.kind for leaf in author.leaves()}
-    if "path" not in kinds:
+    if author.replannable:
+        lit = integrator["type"] == "path"
+    else:  # (a path of max_depth 0 or 1 samples no light: no bias)
+        lit = any(leaf.kind == "path" and not 0 <= leaf.max_depth <= 1
+                  for leaf in author.leaves())
+    if not lit:
         return []
     return [f"Mitsuba 3.9's path renders the sampled light that cut-out BSDFs "
             f"({listing(facts.scan.cut_outs)}) reflect too dark (opacity^2 in place of "
