@@ -38,8 +38,13 @@ def test_chi2_quantile_and_trigamma_match_scipy():
     for df in (0.5, 1.0, 2.0, 3.7, 15.0, 16.0, 100.0, 1024.0, 65536.0, 1e6):
         for p in (1e-9, 0.005, 0.025, 0.5, 0.975, 0.995, 1 - 1e-9):
             assert chi2_quantile(p, df) == pytest.approx(stats.chi2.ppf(p, df), rel=1e-10)
-    for x in (0.05, 0.5, 1.0, 7.5, 8.0, 512.0, 1e7):
-        assert trigamma(x) == pytest.approx(float(special.polygamma(1, x)), rel=1e-12)
+    # trigamma: closed forms (psi'(1) = pi^2 / 6, psi'(1/2) = pi^2 / 2), the recurrence
+    # psi'(x + 1) = psi'(x) - 1 / x^2, and psi'(x) ~ 1 / x + 1 / (2 x^2) for large x.
+    assert trigamma(1.0) == pytest.approx(math.pi ** 2 / 6, rel=1e-12)
+    assert trigamma(0.5) == pytest.approx(math.pi ** 2 / 2, rel=1e-12)
+    for x in (0.05, 7.5, 512.0):
+        assert trigamma(x + 1) == pytest.approx(trigamma(x) - 1 / x ** 2, rel=1e-12)
+    assert trigamma(1e7) == pytest.approx(1e-7 + 0.5e-14, rel=1e-12)
     with pytest.raises(ValueError):
         chi2_quantile(1.0, 3.0)
 
