@@ -49,7 +49,8 @@ from .provenance import source_digest
 from .scene_files import SceneSource, describe
 from .worker_memory import install as limit_worker_memory
 from .worker_memory import memory_kill, workers_available
-from .worker_software import identity, mismatch
+from .worker_software import identity as software_identity
+from .worker_software import mismatch
 
 log = logging.getLogger("mcrt.cluster")
 
@@ -167,10 +168,10 @@ class DaskExecutor:
             self.client.register_plugin(WorkerSetup(self._variant, self._threads,
                                                     plugins.worker_state()))
             # Hand-started workers may run other code (a local cluster's start from ours).
-            found = self.client.run(identity) if self.cluster is None else {}
+            found = self.client.run(software_identity) if self.cluster is None else {}
         except _LOST as error:
             raise self._lost_scheduler(error) from None
-        problem = mismatch(identity(), found)
+        problem = mismatch(software_identity(), found)
         if problem:
             raise McrtError(problem)
         self._plugins = key
