@@ -318,11 +318,11 @@ def render_film(scene: mi.Scene, sampler: mi.Sampler | str | None = None,
                            "seconds": seconds}, accumulator.state())
 
     def result(developed: Any = None) -> FilmRender:
-        release_cached_memory()  # the passes' buffers
+        release_cached_memory(width * height)  # the passes' buffers
         developed = accumulator.develop() if developed is None else developed
         array = np.array(developed, dtype=np.float32)
         del developed
-        release_cached_memory()
+        release_cached_memory(width * height)
         done, seconds = run.done, run.seconds
         nonfinite = np.array(accumulator.nonfinite, dtype=np.uint32).reshape(height, width)
         aovs = list(sampling_integrator(scene).aov_names())
