@@ -30,6 +30,9 @@ Timings are only meaningful on a quiet machine.
 
     python benchmarks/adaptive_efficiency.py [--width 256 --height 192] [--repeats 3]
         [--quick] [--docs docs] [--json out.json]
+
+Another scene: ``--scene scenes/cornell_box.xml --param res=128`` (its own
+parameters, repeatable; ``--width``/``--height`` are edges.xml's).
 """
 
 from __future__ import annotations
@@ -59,6 +62,10 @@ EPSILON = 1e-2
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scene", type=Path, default=SCENE,
+                   help="the scene (default scenes/edges.xml)")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a scene parameter (repeatable); with none, edges.xml's width and height")
     p.add_argument("--width", type=int, default=256)
     p.add_argument("--height", type=int, default=192)
     p.add_argument("--repeats", type=int, default=3)
@@ -135,7 +142,8 @@ def interpolate(xs, ys, x) -> tuple[float, bool]:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    params = {"width": str(args.width), "height": str(args.height)}
+    params = (dict(item.split("=", 1) for item in args.param) if args.param
+              else {"width": str(args.width), "height": str(args.height)})
     fixed_samplers = [s for s in args.fixed_samplers.split(",") if s]
     fixed_spp = [int(s) for s in args.fixed_spp.split(",") if s]
     adaptive_samplers = [s for s in args.adaptive_samplers.split(",") if s]
@@ -152,18 +160,18 @@ def main(argv=None) -> int:
     labels = [label for label, _, _ in series]
     thresholds = [float(t) for t in args.thresholds.split(",") if t]
 
-    print(f"# scenes/edges.xml {args.width}x{args.height}, direct integrator, box filter",
-          flush=True)
+    print(f"# {args.scene.name} {params}", flush=True)
     start = time.perf_counter()
-    refs = [get_reference(SCENE, params, spp=args.reference_spp, sampler="jittered",
+    refs = [get_reference(args.scene, params, spp=args.reference_spp, sampler="jittered",
                           seed=seed, progress=True) for seed in (101, 202)]
     metric = Metric(refs[0].mean, refs[1].mean)
+    pixels = int(np.prod(refs[0].mean.shape[:2]))
     print(f"reference: 2 x {args.reference_spp} spp jittered "
           f"({'cached' if all(r.cached for r in refs) else 'rendered'}, "
           f"{time.perf_counter() - start:.0f} s); its own relMSE (noise floor, subtracted): "
           f"{metric.floor:.2e}", flush=True)
 
-    scene = load_scene(SCENE, params)
+    scene = load_scene(args.scene, params)
     configs = []
     for name in fixed_samplers:
         for spp in fixed_spp:
@@ -276,7 +284,7 @@ def main(argv=None) -> int:
           f"{fit['intercept'] * 1e3:.1f} ms + {fit['slope'] * 1e9:.1f} ns x samples, "
           f"R^2 = {fit['r2']:.3f}")
     fixed_rate = [summary[("fixed", n, max(fixed_spp))]["seconds"]
-                  / (summary[("fixed", n, max(fixed_spp))]["spp"] * args.width * args.height)
+                  / (summary[("fixed", n, max(fixed_spp))]["spp"] * pixels)
                   for n in fixed_samplers]
     print(f"(fixed-spp renders at {max(fixed_spp)} spp: "
           f"{statistics.median(fixed_rate) * 1e9:.1f} ns per sample)")
@@ -335,7 +343,7 @@ def write_figures(directory: Path, curves, rows, last_adaptive, passes, fit, thr
                        label=f"adaptive {name}")
     axes[0].set_xlabel("wall time [s]")
     axes[0].set_ylabel("relMSE")
-    axes[0].set_title("scenes/edges.xml: error vs time")
+    axes[0].set_title("error vs time")
     axes[0].legend(fontsize=8)
     axes[0].grid(True, which="both", alpha=0.3)
     x = np.array([p[0] for p in passes], float)
