@@ -461,7 +461,7 @@ def test_converges_to_the_reference_within_its_error_bound(edges, edges_referenc
     drops far below. The image mean must match the reference's within 3.5 of
     its combined standard errors (no bias from stopping or reconstruction)."""
     y_ref, se_ref = luminance_error(edges_reference)
-    level = 0.1 * image_mean_luminance(y_ref, edges_reference.count)
+    level = AdaptiveSettings().dark_floor * image_mean_luminance(y_ref, edges_reference.count)
     for threshold in (0.1, 0.025):
         settings = AdaptiveSettings(threshold=threshold, max_spp=2048)
         result = render_adaptive(edges, make_sampler("independent", 16), settings, seed=11)
