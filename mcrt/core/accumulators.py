@@ -61,7 +61,7 @@ def release_cached_memory(pixels: int | None = None) -> None:
     own buffers are smaller, so returning them lowers no peak, while the next
     render of the process maps and faults them in again. On the 2-core VM that cost an
     adaptive render of scenes/edges.xml 0.5-0.6 s of system time after two film
-    renders (1.3-1.5 s instead of 1.0), and the quick study ~4% of its wall time."""
+    renders (1.3-1.5 s instead of 1.0); the quick study did not change measurably."""
     if pixels is not None and pixels < RELEASE_PIXELS:
         return
     if dr.flag(dr.JitFlag.FreezingScope):  # a frozen render is recorded: nothing to return
