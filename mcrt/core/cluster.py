@@ -49,8 +49,8 @@ from .provenance import source_digest
 from .scene_files import SceneSource, describe
 from .worker_memory import install as limit_worker_memory
 from .worker_memory import memory_kill, workers_available
+from .worker_software import Verified, mismatch
 from .worker_software import identity as software_identity
-from .worker_software import mismatch
 
 log = logging.getLogger("mcrt.cluster")
 
@@ -142,6 +142,7 @@ class DaskExecutor:
                  quiet: DaskSettings | None = None) -> None:
         self.client, self.cluster, self.address = client, cluster, address
         self._held: dict[str, Future] = {}  # shared inputs, by content (see _input)
+        self._verified: Verified | None = None  # hand-started workers' software, checked
         self._variant, self._threads = variant, threads
         self._plugins: tuple | None = None  # the plugin state the workers have
         self._quiet = quiet or DaskSettings()
@@ -174,6 +175,7 @@ class DaskExecutor:
         problem = mismatch(software_identity(), found)
         if problem:
             raise McrtError(problem)
+        self._verified = Verified(found) if self.cluster is None else None
         self._plugins = key
 
     @classmethod
@@ -319,6 +321,11 @@ class DaskExecutor:
             done = [future for future in submitted if future.status in _DONE]
             if done:
                 self._workers_back()
+                try:  # (workers that joined since: is theirs this software?)
+                    if self._verified is not None:
+                        self._verified.check(self.client, done)
+                except _LOST as error:
+                    raise self._lost_scheduler(error) from None
                 return done
 
     def _outcome(self, future: Future, index: int, label: str, again: dict[int, int],

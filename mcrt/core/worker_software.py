@@ -7,12 +7,18 @@ runs there (:func:`~mcrt.core.provenance.source_digest` is cached per process, s
 later command asks the code the worker imported, not the files on its disk now);
 before its first job a command compares every worker's :func:`identity` with its
 own and refuses, in one line, to run on workers whose software differs
-(:func:`mismatch`). A local cluster's workers start with the command, from its
-install: they are not asked.
+(:func:`mismatch`). Workers that join later are asked when their first result
+comes back (:class:`Verified`): a job never keeps a result of other software. A
+local cluster's workers start with the command, from its install: they are not
+asked.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Any
+
+from ..errors import McrtError
 from .provenance import SOFTWARE_KEYS, software
 
 #: What the line says for each key of :data:`~mcrt.core.provenance.SOFTWARE_KEYS`.
@@ -49,4 +55,30 @@ def mismatch(here: dict[str, str], workers: dict[str, dict[str, str]]) -> str | 
             f"({named}; the first: {what}); their renders would not be this mcrt's bits: "
             f"{RESTART}")
 
-__all__ = ["identity", "mismatch"]
+class Verified:
+    """The workers whose software was found to be this process's, and the check of
+    the others when a result of theirs comes back (a worker that joined a job
+    after it started: a restarted one, or one started by hand meanwhile)."""
+
+    def __init__(self, addresses: Iterable[str] = ()) -> None:
+        self.addresses = set(addresses)
+
+    def check(self, client: Any, futures: list[Any]) -> None:
+        """Raise :class:`~mcrt.errors.McrtError` (:func:`mismatch`'s line) when a
+        worker holding one of ``futures``' results runs other software; ask each
+        worker once (a scheduler round trip a call while none is new)."""
+        holders = {address for where in client.who_has(futures).values() for address in where}
+        new = sorted(holders - self.addresses)
+        if not new:
+            return
+        # (a worker gone since cannot answer: its result stays, it is asked no more)
+        found = {address: there for address, there in
+                 client.run(identity, workers=new, on_error="ignore").items()
+                 if isinstance(there, dict)}
+        problem = mismatch(identity(), found)
+        if problem:
+            raise McrtError(problem)
+        self.addresses.update(new)
+
+
+__all__ = ["Verified", "identity", "mismatch"]

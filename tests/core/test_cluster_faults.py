@@ -326,26 +326,32 @@ def test_no_worker_coming_back_is_one_error_naming_the_workers(tmp_path, cache, 
     same_stats(resumed, get_reference(CORNELL, PARAMS, spp=256, spp_per_pass=8, cache=False))
 
 
+def _other_worker(tmp_path: Path, address: str) -> subprocess.Popen:
+    """A worker that imports another mcrt: a copy of this one with one line
+    changed, first on its PYTHONPATH."""
+    import shutil
+
+    copy = tmp_path / "other"
+    shutil.copytree(ROOT / "mcrt", copy / "mcrt", ignore=shutil.ignore_patterns("__pycache__"))
+    with (copy / "mcrt" / "_version.py").open("a") as file:
+        file.write("# another build\n")
+    return subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1", "--no-nanny"],
+                            env={**os.environ, "PYTHONPATH": str(copy)},
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
 @pytest.mark.skipif(not DASK.exists(), reason="no dask command")
 def test_a_worker_running_other_mcrt_code_is_refused_in_one_line(tmp_path):
     """A hand-started worker that imported another mcrt (here: a copy of this one
     with one line changed, first on its PYTHONPATH) is refused before any task
     runs, in one line naming it and both source digests; a worker of this
     install is accepted (the other tests here use them)."""
-    import shutil
-
     from distributed import Client
 
     from mcrt.core.provenance import source_digest
 
-    copy = tmp_path / "other"
-    shutil.copytree(ROOT / "mcrt", copy / "mcrt", ignore=shutil.ignore_patterns("__pycache__"))
-    with (copy / "mcrt" / "_version.py").open("a") as file:
-        file.write("# another build\n")
     scheduler, address = _scheduler(tmp_path)
-    worker = subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1"],
-                              env={**os.environ, "PYTHONPATH": str(copy)},
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = _other_worker(tmp_path, address)
     try:
         with Client(address, timeout=30) as watcher:
             watcher.wait_for_workers(1, timeout=60)
@@ -361,6 +367,44 @@ def test_a_worker_running_other_mcrt_code_is_refused_in_one_line(tmp_path):
     assert message.endswith(f" where this one has {source_digest()}; its renders would not be "
                             f"this mcrt's bits: restart the workers from this install (a worker "
                             f"keeps the code it imported when it started)"), message
+
+
+@pytest.mark.skipif(not DASK.exists(), reason="no dask command")
+def test_a_worker_of_other_software_joining_a_job_later_has_no_result_kept(tmp_path):
+    """A worker that joins after the executor checked the workers (here: the one
+    left once this install's worker is stopped) is asked when its first result
+    comes back, and the job ends in the same one line: none of its results is
+    kept. Before, only the workers there at the start were asked."""
+    from distributed import Client
+
+    scheduler, address = _scheduler(tmp_path)
+    good, other = _worker(address, "--no-nanny"), None
+    try:
+        with Client(address, timeout=30) as watcher:
+            watcher.wait_for_workers(1, timeout=60)
+            (first,) = watcher.nthreads()
+            executor = DaskExecutor.connect(address)
+            try:
+                assert sorted(executor.map(abs, 3)) == [(0, 0), (1, 1), (2, 2)]  # accepted
+                other = _other_worker(tmp_path, address)
+                watcher.wait_for_workers(2, timeout=60)
+                _stop(good)
+                deadline = time.monotonic() + 30
+                while first in watcher.nthreads() and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                (where,) = watcher.nthreads()
+                kept = []
+                with pytest.raises(McrtError) as refused:
+                    kept.extend(executor.map(abs, 4))
+            finally:
+                executor.close()
+    finally:
+        _stop(scheduler, good, *([other] if other else []))
+    assert kept == []
+    message = str(refused.value)
+    assert "\n" not in message
+    assert message.startswith(f"the Dask worker at {where} runs other software than this mcrt: "
+                              f"mcrt source "), message
 
 
 def test_the_software_line_names_at_most_three_workers_and_what_differs():
