@@ -112,8 +112,8 @@ class AdaptiveSettings:
         "that level", low=0.0,
         details="That mean, ``Ybar``, clips each pixel at the 99th percentile (a small "
                 "bright light does not set the level); black pixels thus stop too. 0.3 "
-                "keeps dark pixels to at least the accuracy relMSE (eps = 0.01) asks of "
-                "images whose ``Ybar`` is 0.07-0.4 (its floor of 0.1 is 0.25-1.4 ``Ybar``); "
+                "lies near the low end of where relMSE (eps = 0.01) measures absolute "
+                "error, below 0.1: 0.25-1.4 ``Ybar`` on images whose ``Ybar`` is 0.07-0.4; "
                 "0.1 spent samples on shadows that relMSE does not see (docs/adaptive.md).")
     min_spp: int = param(
         16, "samples of every pixel in the first pass", low=2,
