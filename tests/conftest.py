@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import queue
+import signal
 import subprocess
 import threading
 from collections.abc import Iterator
@@ -280,6 +281,16 @@ def stream_lines(stream) -> queue.Queue:
         lines.put(None)
     threading.Thread(target=read, daemon=True).start()
     return lines
+
+
+def end_holder(process, end: str) -> None:
+    """End a child that holds a lock and waits for a line on its stdin: SIGKILL it
+    (``end == "killed"``) or send the line, so that it lets go and exits."""
+    if end == "killed":
+        process.send_signal(signal.SIGKILL)
+    else:
+        process.stdin.write("\n")
+        process.stdin.flush()
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT, stream_lines
+from tests.conftest import ROOT, end_holder, stream_lines
 
 pytestmark = [
     pytest.mark.slow,
@@ -82,11 +82,7 @@ def test_a_second_reference_waits_for_the_first(tmp_path, end):
         assert seen and f"mcrt: note: another mcrt (PID {first.pid}: first.py) is rendering " \
             "the same reference: waiting for it, then taking its result" in seen[-1], seen
         assert second.poll() is None  # waiting
-        if end == "killed":
-            first.send_signal(signal.SIGKILL)
-        else:
-            first.stdin.write("\n")
-            first.stdin.flush()
+        end_holder(first, end)
         second.wait(timeout=120)
         out = second.stdout.read()
         assert second.returncode == 0, _until(notes, "\0")

@@ -20,7 +20,7 @@ import pytest
 
 from mcrt.core import file_lock
 from mcrt.core.file_lock import waiting_lock
-from tests.conftest import stream_lines
+from tests.conftest import end_holder, stream_lines
 
 #: A process that loads file_lock.py and runs ``BODY`` with ``lock`` (waiting_lock)
 #: and the lock file's path ``path``; its notes go to stderr.
@@ -74,11 +74,7 @@ def test_a_second_process_waits_for_the_holder(tmp_path, end):
         note = _next(notes)
         assert note == f"note: waiting for PID {holder.pid}: holder.py {path}\n", note
         assert waiter.poll() is None  # blocked on the lock
-        if end == "killed":
-            holder.send_signal(signal.SIGKILL)
-        else:
-            holder.stdin.write("\n")
-            holder.stdin.flush()
+        end_holder(holder, end)
         waiter.wait(timeout=60)
         rest = list(iter(lambda: _next(notes), None))
         assert waiter.returncode == 0 and not rest, rest  # one note, no error
