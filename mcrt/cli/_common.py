@@ -285,6 +285,38 @@ def recorded(args: argparse.Namespace, *words: Any) -> dict[str, str]:
     return {COMMAND: command_text(args.command, *words, plugins=plugins), **software()}
 
 
+def parse_sampler_params(items: Sequence[str] | None, flag: str = "-P") -> dict[str, Any]:
+    """``-P key=value`` items (``flag``: the option as the command names it) to
+    sampler plugin parameters: ``true``/``false`` as booleans, numbers as int or
+    float, anything else as text. The sample count, seed and plugin type are the
+    command's own options (one line naming it)."""
+    import re
+
+    from ..core.sampling import RENDER_SETTINGS
+
+    params: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not re.fullmatch(r"[A-Za-z_]\w*", key):
+            raise McrtError(f"{flag} expects key=value, got {item!r}")
+        if key in RENDER_SETTINGS:
+            raise McrtError(f"{flag} {key}: use the command's own option ({RENDER_SETTINGS[key]})")
+        params[key] = _typed(value)
+    return params
+
+
+def _typed(text: str) -> Any:
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def param_words(flag: str, items: Sequence[str] | None) -> list[str]:
     """``flag KEY=VALUE`` for each sampler parameter, as a recorded command gives
     them (a point-set file by absolute path: :func:`~mcrt.core.provenance.param_word`)."""

@@ -52,10 +52,9 @@ def add_parser(commands) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..analysis.check import Subject, checks_for, run_checks
     from ..analysis.check_report import table_lines, verdict, write_report
-    from .pattern_cmd import parse_params
 
     name = check_sampler_name(args.sampler)
-    params = parse_params(args.param)
+    params = _common.parse_sampler_params(args.param, "--param")
     out = None
     if args.output:
         out = ensure_writable_dir(Path(args.output))

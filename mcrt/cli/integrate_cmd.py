@@ -100,10 +100,9 @@ def sample_counts(min_n: int, max_n: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .pattern_cmd import parse_params
 
     peer = args.integrand in _integrate_peers.SUITES
-    args.params = parse_params(args.param)
+    args.params = _common.parse_sampler_params(args.param, "--param")
     if args.sampler is None:
         args.sampler = ",".join(_integrate_peers.DEFAULT_SAMPLERS if peer else DEFAULT_SAMPLERS)
     samplers = [check_sampler_name(s.strip()) for s in args.sampler.split(",") if s.strip()]

@@ -6,7 +6,6 @@ import argparse
 import csv
 import logging
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -78,31 +77,6 @@ def add_parser(commands) -> None:
     p.set_defaults(run=run)
 
 
-def parse_params(items: list[str] | None) -> dict:
-    """``["jitter=0.5", ...]`` to plugin parameters (int, float, bool or string)."""
-    params: dict = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or not re.fullmatch(r"[A-Za-z_]\w*", key):
-            raise McrtError(f"--param expects key=value, got {item!r}")
-        if key in ("type", "sample_count", "seed"):
-            raise McrtError(f"--param {key}: use the command's own option instead")
-        value = value.strip()
-        if value.lower() in ("true", "false"):
-            params[key] = value.lower() == "true"
-            continue
-        for convert in (int, float):
-            try:
-                params[key] = convert(value)
-                break
-            except ValueError:
-                continue
-        else:
-            params[key] = value
-    return params
-
-
 def grid_resolution(sampler: str, n: int) -> int | None:
     """Strata per axis to draw for grid samplers (None for the others): those of
     :data:`GRID_SAMPLERS` and any registered sampler that claims k x k strata."""
@@ -116,7 +90,7 @@ def grid_resolution(sampler: str, n: int) -> int | None:
 
 def run(args: argparse.Namespace) -> int:
     name = check_sampler_name(args.sampler)
-    params = parse_params(args.param)
+    params = _common.parse_sampler_params(args.param, "--param")
     if args.spp > MAX_PATTERN_SPP:
         raise McrtError(f"--spp: at most {MAX_PATTERN_SPP} samples per pixel, got {args.spp}")
     with quiet_sampler_warnings():

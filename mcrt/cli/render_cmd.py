@@ -300,28 +300,11 @@ def _write_or_keep(store: CheckpointStore, write: Callable[[], None],
 
 
 def parse_sampler_params(items: list[str] | None, sampler: str | None) -> dict:
-    """``-P key=value`` items to plugin parameters (numbers and booleans typed)."""
-    params: dict = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise McrtError(f"-P expects key=value, got {item!r}")
-        params[key.strip()] = _typed(value.strip())
+    """``-P key=value`` items to the ``--sampler`` plugin's parameters."""
+    params = _common.parse_sampler_params(items)
     if params and sampler is None:
         raise McrtError("-P sets parameters of the sampler given with --sampler")
     return params
-
-
-def _typed(text: str):
-    lowered = text.lower()
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
 
 
 def _nonfinite_line(total: int, image_counts, layer: str = "") -> str:
