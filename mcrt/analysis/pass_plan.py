@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -71,14 +72,21 @@ class PassPlan:
         return " + ".join(parts) + " spp"
 
 
-def _sample_count(sampler: str, n: int, cache: dict[int, int]) -> int:
-    """The count ``sampler`` uses when asked for ``n`` (raises if it refuses ``n``)."""
-    if n not in cache:
-        cache[n] = make_sampler(sampler, n).sample_count()
-    return cache[n]
+class _Counts:
+    """The count ``sampler`` (with plugin ``params``) uses when asked for ``n``,
+    each asked once (raises if it refuses ``n``)."""
+
+    def __init__(self, sampler: str, params: dict[str, Any]) -> None:
+        self.sampler, self.params = sampler, params
+        self.known: dict[int, int] = {}
+
+    def of(self, n: int) -> int:
+        if n not in self.known:
+            self.known[n] = make_sampler(self.sampler, n, **self.params).sample_count()
+        return self.known[n]
 
 
-def _largest_accepted(sampler: str, n: int, cache: dict[int, int]) -> int | None:
+def _largest_accepted(counts: _Counts, n: int) -> int | None:
     """Largest count ``<= n`` that ``sampler`` takes unchanged (None if there is none).
 
     Samplers round *up* and monotonically (checked for every built-in and mcrt
@@ -86,30 +94,29 @@ def _largest_accepted(sampler: str, n: int, cache: dict[int, int]) -> int | None
     ``r`` and the answer is ``r(m)`` for the largest ``m`` with ``r(m) <= n``,
     found by bisection in O(log n) probes.
     """
-    if _sample_count(sampler, n, cache) == n:
+    if counts.of(n) == n:
         return n
     lo, hi = 0, n  # invariant: r(lo) <= n (lo = 0 meaning "none yet"), r(hi) > n
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if _sample_count(sampler, mid, cache) <= n:
+        if counts.of(mid) <= n:
             lo = mid
         else:
             hi = mid
     if lo == 0:
         return None
-    best = _sample_count(sampler, lo, cache)
-    if _sample_count(sampler, best, cache) != best:  # pragma: no cover - non-idempotent rounding
-        raise SamplerError(f"sampler {sampler!r} does not keep its own sample count {best}")
+    best = counts.of(lo)
+    if counts.of(best) != best:  # pragma: no cover - non-idempotent rounding
+        raise SamplerError(f"sampler {counts.sampler!r} does not keep its own sample count {best}")
     return best
 
 
-def _accepted_up_to(sampler: str, n: int, counts: dict[int, int],
-                    limit: int = 256) -> list[int]:
+def _accepted_up_to(counts: _Counts, n: int, limit: int = 256) -> list[int]:
     """The (at most ``limit`` largest) counts ``<= n`` the sampler takes unchanged,
     descending."""
     found: list[int] = []
     while n >= 1 and len(found) < limit:
-        a = _largest_accepted(sampler, n, counts)
+        a = _largest_accepted(counts, n)
         if a is None:
             break
         found.append(a)
@@ -117,17 +124,16 @@ def _accepted_up_to(sampler: str, n: int, counts: dict[int, int],
     return found
 
 
-def _exact_split(sampler: str, rest: int, counts: dict[int, int],
-                 max_parts: int = 8) -> tuple[int, ...] | None:
+def _exact_split(counts: _Counts, rest: int, max_parts: int = 8) -> tuple[int, ...] | None:
     """The fewest accepted counts (at most ``max_parts``) summing to ``rest``
     exactly, largest first; None if there are none. Breadth-first over sums of 1,
     2, ... parts (every integer is a sum of four squares, so square-only samplers
     need at most 4 when 1 is accepted)."""
     if rest == 0:
         return ()
-    if _sample_count(sampler, rest, counts) == rest:
+    if counts.of(rest) == rest:
         return (rest,)
-    coins = _accepted_up_to(sampler, rest, counts)
+    coins = _accepted_up_to(counts, rest)
     if not coins:
         return None
     layers = [np.zeros(rest + 1, bool)]
@@ -147,22 +153,24 @@ def _exact_split(sampler: str, rest: int, counts: dict[int, int],
     return None
 
 
-def _greedy_split(sampler: str, rest: int, counts: dict[int, int]) -> tuple[int, ...]:
+def _greedy_split(counts: _Counts, rest: int) -> tuple[int, ...]:
     """Largest accepted parts first; the last part rounded up by the sampler when
     it accepts nothing small enough (the total then exceeds ``rest``)."""
     parts = []
     while rest > 0:
-        part = _largest_accepted(sampler, rest, counts)
+        part = _largest_accepted(counts, rest)
         if part is None:
-            parts.append(_sample_count(sampler, rest, counts))
+            parts.append(counts.of(rest))
             break
         parts.append(part)
         rest -= part
     return tuple(parts)
 
 
-def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = None) -> PassPlan:
-    """Split ``spp`` samples per pixel into passes that ``sampler`` renders exactly.
+def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = None,
+                params: dict[str, Any] | None = None) -> PassPlan:
+    """Split ``spp`` samples per pixel into passes that ``sampler`` (with plugin
+    ``params``) renders exactly.
 
     ``spp_per_pass`` (default: 256, reduced so that ``pixels * pass_spp <=``
     :data:`LANE_BUDGET`) is lowered to the largest count the sampler accepts.
@@ -174,19 +182,23 @@ def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = 
         raise McrtError(f"samples per pass must be at least 1, got {spp_per_pass}")
     target = spp_per_pass or max(1, min(DEFAULT_PASS_SPP, LANE_BUDGET // max(1, pixels)))
     target = min(target, spp)
-    counts: dict[int, int] = {}
+    counts = _Counts(sampler, dict(params or {}))
     with quiet_sampler_warnings():
-        pass_spp = _largest_accepted(sampler, target, counts) \
-            or _sample_count(sampler, target, counts)
+        try:
+            pass_spp = _largest_accepted(counts, target) or counts.of(target)
+        except SamplerError as error:  # e.g. a point set file of other sizes
+            raise SamplerError(f"{error} (a reference renders passes of {target} samples per "
+                               f"pixel here: --spp-per-pass, or a study's "
+                               f"reference.spp_per_pass, sets another size)") from None
         full, rest = divmod(spp, pass_spp)
         tail = None
         for drop in range(min(full, 3) + 1):  # fold up to 3 full passes into the tail
-            tail = _exact_split(sampler, rest + drop * pass_spp, counts)
+            tail = _exact_split(counts, rest + drop * pass_spp)
             if tail is not None:
                 full -= drop
                 break
         if tail is None:
-            tail = _greedy_split(sampler, rest, counts)
+            tail = _greedy_split(counts, rest)
     plan = PassPlan(requested_spp=spp, pass_spp=pass_spp, full_passes=full, tail=tuple(tail))
     if spp_per_pass is not None and pass_spp != min(spp_per_pass, spp):
         log.info("%s takes %d samples per pixel per pass (requested %d)", sampler, pass_spp,

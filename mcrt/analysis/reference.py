@@ -26,8 +26,9 @@ Cache and resume
     The result is cached under ``<cache>/reference`` (:func:`mcrt.cache.cache_dir`)
     by :func:`reference_key`, a SHA-256 of the scene's content (the XML, the
     files it includes and the files it names with ``filename``), the ``-D``
-    parameters, sampler, seed, requested spp, the pass plan, the lane budget,
-    the Mitsuba / Dr.Jit / mcrt versions, the variant and :data:`CACHE_FORMAT`.
+    parameters, sampler and its plugin parameters (a point file's content too),
+    seed, requested spp, the pass plan, the lane budget, the Mitsuba / Dr.Jit /
+    mcrt versions, the variant and :data:`CACHE_FORMAT`.
     After every finished pass the running state (count, mean, M2, nonfinite,
     passes done, seconds, key) is written atomically to ``<key>.partial.npz``;
     the finished reference goes to ``<key>.npz``. A later call with the same
@@ -64,8 +65,9 @@ import functools
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +76,7 @@ from ..core.executor import Executor, cluster_status, task_memory
 from ..core.filtered import FilteredStats
 from ..core.job import Interrupted, Job, content_key, run_job
 from ..core.progress import Progress
+from ..core.provenance import FILE_PARAMS, absolute
 from ..core.render import StatsRender, render_stats
 from ..core.sampling import check_sampler_name, make_sampler, sampler_fingerprint
 from ..core.scene_files import SceneBundle, SceneSource, scene_digest
@@ -111,9 +114,13 @@ def pass_seed(seed: int, index: int) -> int:
 
 
 def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: str, seed: int,
-                plan: PassPlan, filtered: bool = False) -> dict:
+                plan: PassPlan, filtered: bool = False,
+                sampler_params: dict[str, Any] | None = None) -> dict:
     """Everything a reference's bits depend on (see :func:`reference_key`)."""
-    extra = {"estimator": "filtered"} if filtered else {}  # box keys stay as they were
+    # Keys without a filter or sampler parameters stay as they were.
+    extra: dict[str, Any] = {"estimator": "filtered"} if filtered else {}
+    if sampler_params:
+        extra["sampler_params"] = sorted([k, v] for k, v in sampler_params.items())
     return {**extra,
         "format": CACHE_FORMAT,
         "scene": scene_digest(scene_path, params),
@@ -123,14 +130,17 @@ def key_payload(scene_path: str | Path, params: dict[str, str] | None, sampler: 
         "spp": plan.requested_spp,
         "plan": [plan.pass_spp, plan.full_passes, list(plan.tail)],
         "lane_budget": LANE_BUDGET,
-        **({"sampler_code": code} if (code := sampler_fingerprint(sampler)) else {}),
+        **({"sampler_code": code} if (code := sampler_fingerprint(sampler, sampler_params))
+           else {}),
     }
 
 
 def reference_key(scene_path: str | Path, params: dict[str, str] | None, sampler: str,
-                  seed: int, plan: PassPlan, filtered: bool = False) -> str:
+                  seed: int, plan: PassPlan, filtered: bool = False,
+                  sampler_params: dict[str, Any] | None = None) -> str:
     """Cache key: :func:`~mcrt.core.job.content_key` of :func:`key_payload`."""
-    return content_key(key_payload(scene_path, params, sampler, seed, plan, filtered))
+    return content_key(key_payload(scene_path, params, sampler, seed, plan, filtered,
+                                   sampler_params))
 
 
 # --------------------------------------------------------------------------- result
@@ -162,6 +172,7 @@ class Reference:
     resumed_passes: int = 0
     plan: PassPlan | None = None
     pass_seconds: float = 0.0
+    sampler_params: dict[str, Any] = field(default_factory=dict)
 
     @property
     def mean(self) -> np.ndarray:
@@ -196,9 +207,10 @@ class Reference:
 @dataclass(frozen=True)
 class ReferenceRequest:
     """Which reference: a scene (its ``$key`` parameters, the CLI's ``-D``) at
-    ``spp`` samples per pixel of ``sampler`` from ``seed``, in passes of
-    ``spp_per_pass`` (None: as many as fit). With the software it is what the
-    reference's bits, and so its cache key, depend on."""
+    ``spp`` samples per pixel of ``sampler`` (with its plugin parameters
+    ``sampler_params``, e.g. a ``pointset``'s ``filename``) from ``seed``, in
+    passes of ``spp_per_pass`` (None: as many as fit). With the software it is
+    what the reference's bits, and so its cache key, depend on."""
 
     scene_path: str | Path
     params: dict[str, str] | None = None
@@ -206,6 +218,7 @@ class ReferenceRequest:
     sampler: str = "independent"
     seed: int = 0
     spp_per_pass: int | None = None
+    sampler_params: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -228,9 +241,11 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
                   progress: bool = False, *, cache: bool = True,
                   on_pass: Callable[[int, int], None] | None = None,
                   executor: Executor | None = None,
-                  before_work: Callable[[int, int], None] | None = None) -> Reference:
+                  before_work: Callable[[int, int], None] | None = None,
+                  sampler_params: dict[str, Any] | None = None) -> Reference:
     """Render (or fetch from the cache) a reference of ``scene_path`` at ``spp``:
-    the :class:`ReferenceRequest` of the arguments before ``progress``, seen
+    the :class:`ReferenceRequest` of the arguments before ``progress`` and of
+    ``sampler_params``, seen
     through the :class:`ReferenceHooks` ``progress``, ``on_pass``, ``before_work``.
 
     A :class:`~mcrt.core.job.Job` whose tasks are the passes (each a pure
@@ -241,8 +256,8 @@ def get_reference(scene_path: str | Path, params: dict[str, str] | None = None,
     or scenes, before rendering.
     """
     hooks = ReferenceHooks(progress, on_pass, before_work)
-    setup = _setup(ReferenceRequest(scene_path, params, spp, sampler, seed, spp_per_pass),
-                   executor)
+    setup = _setup(ReferenceRequest(scene_path, params, spp, sampler, seed, spp_per_pass,
+                                    sampler_params), executor)
     height, width = setup.shape
     if cache:  # room for the partial and the finished state (and a temporary copy)
         remove_stale_temporaries(setup.finished.parent)
@@ -281,6 +296,7 @@ class _Setup:
     plan: PassPlan
     key: str
     shape: tuple[int, int]  # (height, width) of the reference's pixels
+    sampler_params: dict[str, Any]
 
     @property
     def finished(self) -> Path:
@@ -294,7 +310,8 @@ class _Setup:
                resumed: int = 0, pass_seconds: float = 0.0) -> Reference:
         return Reference(stats=stats, spp=self.plan.spp, sampler=self.sampler, seed=self.seed,
                          passes=self.plan.passes, seconds=seconds, key=self.key, cached=cached,
-                         resumed_passes=resumed, plan=self.plan, pass_seconds=pass_seconds)
+                         resumed_passes=resumed, plan=self.plan, pass_seconds=pass_seconds,
+                         sampler_params=dict(self.sampler_params))
 
 
 def _setup(request: ReferenceRequest, executor: Executor | None = None) -> _Setup:
@@ -309,6 +326,10 @@ def _setup(request: ReferenceRequest, executor: Executor | None = None) -> _Setu
     spp = whole_number(spp, "a reference's spp (samples per pixel)")
     seed = whole_number(seed, "a reference's seed", 0, 2 ** 32)
     check_sampler_name(sampler)
+    # A point-set file by absolute path: the key, the header and the passes on any
+    # worker name the same file, whatever the working directory.
+    sampler_params = {k: absolute(v) if k in FILE_PARAMS and isinstance(v, str) and v else v
+                      for k, v in (request.sampler_params or {}).items()}
     # The scene `mcrt render` renders (motion too), kept for this process's tasks.
     planned = planned_scene(scene_path, params)
     source = SceneSource.of(scene_path, params)
@@ -321,11 +342,12 @@ def _setup(request: ReferenceRequest, executor: Executor | None = None) -> _Setu
                  "errors count every filter weight)", film.rfilter().class_name())
     if spp_per_pass is None:
         spp_per_pass = memory_pass_spp(width * height, spp, executor)
-    plan = plan_passes(sampler, spp, width * height, spp_per_pass)
-    key = reference_key(scene_path, params, sampler, seed, plan, filtered)
+    plan = plan_passes(sampler, spp, width * height, spp_per_pass, sampler_params)
+    key = reference_key(scene_path, params, sampler, seed, plan, filtered, sampler_params)
     if filtered:  # the developed pixels: the crop window
         width, height = (int(v) for v in film.crop_size())
-    return _Setup(params, sampler, seed, source, filtered, plan, key, (height, width))
+    return _Setup(params, sampler, seed, source, filtered, plan, key, (height, width),
+                  sampler_params)
 
 
 def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float, cache: bool,
@@ -334,7 +356,7 @@ def _render(setup: _Setup, start: StatsRender | None, done: int, seconds: float,
     state after each, and return the reference."""
     plan = setup.plan
     task = ReferencePass(tuple(sorted(setup.params.items())), setup.sampler, plan, setup.seed,
-                         setup.filtered)
+                         setup.filtered, tuple(sorted(setup.sampler_params.items())))
     job = Job(setup.key, plan.passes, functools.partial(reference_pass, task), _merge,
               shared={"scene": setup.source})
     saver = StateSaver(setup.key, plan, setup.finished, setup.partial, cache)
@@ -378,6 +400,7 @@ class ReferencePass:
     plan: PassPlan
     seed: int
     filtered: bool
+    sampler_params: tuple[tuple[str, Any], ...] = ()
 
 
 def reference_pass(task: ReferencePass, index: int,
@@ -386,7 +409,7 @@ def reference_pass(task: ReferencePass, index: int,
     this process or on a cluster worker (the scene loaded once per process)."""
     planned = planned_scene(scene, dict(task.params))
     count = task.plan.spp_of(index)
-    pass_sampler = make_sampler(task.sampler, count)
+    pass_sampler = make_sampler(task.sampler, count, **dict(task.sampler_params))
     subframes, move = planned.schedule(pass_sampler, count, pass_seed(task.seed, index))
     part = render_stats(planned.scene, pass_sampler, seed=pass_seed(task.seed, index),
                         max_lanes=LANE_BUDGET, passes=subframes, on_pass=move,

@@ -4,8 +4,9 @@ was made: :mod:`mcrt.core.provenance`, its sample totals, the film's filter)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,6 +46,7 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
         absolute,
         command_text,
         define_words,
+        param_word,
         plugin_files,
         scene_facts,
         software,
@@ -55,6 +57,8 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
     words = [absolute(scene_path), "--spp", plan.requested_spp if plan else ref.spp,
              "--sampler", ref.sampler, "--seed", ref.seed,
              *(["--spp-per-pass", plan.pass_spp] if plan else []),
+             *(w for k, v in sorted(ref.sampler_params.items())
+               for w in ("-P", param_word(f"{k}={_text(v)}"))),
              *define_words(scene_path, params)]
     return {
         **software(), "mcrt_kind": "reference",
@@ -63,6 +67,8 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
         "params": " ".join(f"{k}={v}" for k, v in params.items()),
         **_filter_of(scene_path, params),
         "sampler": ref.sampler, "seed": ref.seed, "spp": ref.spp,
+        **({"sampler_params": json.dumps(ref.sampler_params, sort_keys=True)}
+           if ref.sampler_params else {}),
         "requested_spp": plan.requested_spp if plan else ref.spp,
         "passes": ref.passes, "pass_plan": plan.describe() if plan else "",
         "samples": ref.drawn_samples, "finite_samples": ref.samples,
@@ -70,6 +76,11 @@ def reference_metadata(ref: Reference, scene_path: str | Path,
         "max_pixel_count": int(ref.stats.count.max()),
         "cache_key": ref.key,
     }
+
+
+def _text(value: Any) -> str:
+    """A ``-P`` value as the command line gives it (booleans as true/false)."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
 
 def _filter_of(scene_path: str | Path, params: dict[str, str]) -> dict[str, str]:

@@ -44,12 +44,17 @@ def add_parser(commands) -> None:
                     "~/.cache/mcrt); an interrupted reference resumes from its last pass.",
         epilog=examples("mcrt reference scenes/cornell_box.xml --spp 4096",
                         "mcrt reference scenes/checkerboard.xml --sampler jittered -o out/refs/",
+                        "mcrt reference scenes/edges.xml --sampler pointset -P filename=sets.npy",
                         "mcrt reference scenes/cornell_box.xml --spp 65536 --cluster local"))
     p.add_argument("scene", metavar="SCENE.xml", help="Mitsuba 3 XML scene")
     p.add_argument("--spp", type=positive_int, default=DEFAULT_REFERENCE_SPP, metavar="N",
                    help=f"total samples per pixel (default {DEFAULT_REFERENCE_SPP})")
     p.add_argument("--sampler", default="independent", metavar="NAME",
                    help=f"sampler plugin (default independent); one of {sampler_choices()}")
+    p.add_argument("-P", "--sampler-param", dest="sampler_params", action="append",
+                   metavar="KEY=VALUE",
+                   help="a parameter of the --sampler plugin (e.g. -P filename=sets.npy for "
+                        "pointset); repeatable")
     p.add_argument("--seed", type=non_negative_int, default=0, metavar="S",
                    help="seed; pass i uses a seed hashed from (S, i) (default 0)")
     p.add_argument("--spp-per-pass", type=positive_int, metavar="N",
@@ -75,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     # Everything a user can get wrong is checked before rendering starts
     # (get_reference loads the scene and plans the passes before its first pass).
     check_sampler_name(args.sampler)
+    sampler_params = _common.parse_sampler_params(args.sampler_params)
     params = located(args.scene, parse_defines(args.defines))  # -D files by absolute path
     check_scene_file(args.scene)
     out = _output_path(args.output, args.scene)
@@ -88,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
                                     seed=args.seed, spp_per_pass=args.spp_per_pass,
                                     progress=not args.quiet, cache=not args.no_cache,
                                     before_work=lambda w, h: _before_work(out, w * h),
-                                    executor=executor)
+                                    executor=executor, sampler_params=sampler_params)
         except Interrupted as stop:
             return _interrupted(stop, args, params, out)
     try:

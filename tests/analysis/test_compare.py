@@ -536,3 +536,23 @@ def test_a_config_s_files_are_found_from_any_folder(tmp_path, monkeypatch):
     config = load_config(Path("../cfg/s.toml"), check_scenes=False)
     assert config.samplers[1].params == {"filename": str(folder.resolve() / "sets.npz")}
     assert config.as_dict()["config_path"] == str(folder.resolve() / "s.toml")
+    assert "params" not in config.as_dict()["reference"]  # (results.json as before)
+
+
+def test_a_reference_sampler_takes_parameters_checked_before_rendering(tmp_path, monkeypatch):
+    """``[reference] params``: the reference sampler's plugin parameters (a point-set
+    file relative to the configuration's folder), recorded in the configuration's
+    record; a parameter the sampler refuses fails the checks in one line."""
+    monkeypatch.setenv("MCRT_CACHE_DIR", str(tmp_path / "cache"))
+    text = ('name = "s"\nspp = [4, 16]\nseeds = 2\nsamplers = ["jittered"]\n'
+            '[reference]\nspp = 64\nsampler = "pointset"\nspp_per_pass = 4\n'
+            'params = { filename = "sets.npy" }\n'
+            f'[[scenes]]\npath = "{CHECKERBOARD}"\nparams = {{ width = 32, height = 24 }}\n')
+    rng = np.random.default_rng(2)
+    np.save(tmp_path / "sets.npy", rng.random((16, 4, 2)).astype(np.float32))
+    config = load_config(_config(tmp_path, text))
+    sets = str(tmp_path.resolve() / "sets.npy")
+    assert config.reference.params == {"filename": sets}
+    assert config.as_dict()["reference"]["params"] == {"filename": sets}
+    with pytest.raises(ConfigError, match="reference of scene .*passes of 16 samples per pixel.*reference.spp_per_pass"):
+        load_config(_config(tmp_path, text.replace("spp_per_pass = 4", "spp_per_pass = 16")))

@@ -107,9 +107,10 @@ def test_pass_seeds_are_distinct():
 # --------------------------------------------------------------------------- cache keys
 
 
-def _key(path, params=SMALL, spp=64, sampler="independent", seed=0, per=None) -> str:
-    plan = plan_passes(sampler, spp, pixels=64, spp_per_pass=per)
-    return reference_key(path, params, sampler, seed, plan)
+def _key(path, params=SMALL, spp=64, sampler="independent", seed=0, per=None,
+         sampler_params=None) -> str:
+    plan = plan_passes(sampler, spp, pixels=64, spp_per_pass=per, params=sampler_params)
+    return reference_key(path, params, sampler, seed, plan, sampler_params=sampler_params)
 
 
 def test_key_depends_on_every_input(scene, tmp_path):
@@ -120,7 +121,9 @@ def test_key_depends_on_every_input(scene, tmp_path):
     assert _key(copy) == base  # content, not path
     others = [_key(scene, {**SMALL, "max_depth": "4"}), _key(scene, {**SMALL, "extra": "1"}),
               _key(scene, spp=65), _key(scene, sampler="stratified"), _key(scene, seed=1),
-              _key(scene, per=16)]
+              _key(scene, per=16), _key(scene, sampler="stratified",
+                                        sampler_params={"jitter": False})]
+    assert _key(scene, sampler_params={}) == base  # (keys made before parameters stay)
     scene.write_text(scene.read_text().replace('value="39.3077"', 'value="40"'))
     others.append(_key(scene))
     assert len({base, *others}) == len(others) + 1

@@ -129,3 +129,58 @@ def test_every_image_of_a_study_with_filters_renders_again(capsys, monkeypatch, 
     for f in files:
         assert "mcrt.rfilter=tent" in _command(f), f
         _again_elsewhere(capsys, monkeypatch, tmp_path, f)
+
+
+def test_a_reference_of_a_point_set_file_renders_again_and_follows_the_file(
+        capsys, monkeypatch, tmp_path):
+    """``mcrt reference --sampler pointset -P filename=sets.npy`` (a relative path):
+    its passes use the file (it took no sampler parameter: a point-set reference
+    could not be made), its command names the file by absolute path and renders it
+    again from another folder bit for bit, and new points in the same file make a
+    new reference, not the cached one."""
+    _point_sets(Path("sets.npy"))  # 16 sets of 4 points
+    argv = ["-q", "reference", str(CORNELL), "-D", "res=8", "-D", "max_depth=2", "--sampler",
+            "pointset", "-P", "filename=sets.npy", "--spp", "16", "--spp-per-pass", "4"]
+    code, _, err = run_cli(capsys, *argv, "-o", "ref_sets.exr")
+    assert code == 0, err
+    made = Path("ref_sets.exr")
+    _, header = read_exr(made)
+    assert header["sampler_params"] == f'{{"filename": "{Path("sets.npy").resolve()}"}}'
+    assert f"filename={Path('sets.npy').resolve()}" in _command(made)
+    assert header["passes"] == 4
+    _again_elsewhere(capsys, monkeypatch, tmp_path, made)
+
+    monkeypatch.chdir(tmp_path / "made")
+    rng = np.random.default_rng(6)
+    np.save("sets.npy", (rng.random((16, 4, 2)) * 0.99).astype(np.float32))
+    code, out, err = run_cli(capsys, *argv, "-o", "ref_new_sets.exr")
+    assert code == 0 and "found in cache" not in out, err
+    assert read_exr(Path("ref_new_sets.exr"))[1]["cache_key"] != header["cache_key"]
+    assert not np.array_equal(_bits(Path("ref_new_sets.exr")), _bits(made))
+
+
+def test_a_reference_sampler_that_refuses_the_pass_size_says_what_sets_it(capsys):
+    _point_sets(Path("sets.npy"))
+    code, _, err = run_cli(capsys, "-q", "reference", str(CORNELL), "-D", "res=8",
+                           "--sampler", "pointset", "-P", "filename=sets.npy", "--spp", "64")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "4 points" in err and "passes of 64 samples per pixel" in err
+    assert "--spp-per-pass" in err
+
+
+def test_a_study_s_reference_with_sampler_parameters_renders_again(capsys, monkeypatch,
+                                                                    tmp_path):
+    """``[reference] params``: the reference is made with them, and its EXR's command
+    (``-P jitter=false``) makes the same reference again, bit for bit."""
+    config = Path("s.toml")
+    config.write_text('name = "s"\nspp = [1, 4]\nseeds = 2\nimage_spp = 4\ntime_rounds = 2\n'
+                      'samplers = ["jittered"]\n[reference]\nspp = 16\nsampler = "stratified"\n'
+                      'params = { jitter = false }\n'
+                      f'[[scenes]]\npath = "{CORNELL}"\nname = "box"\n'
+                      'params = { res = 8, max_depth = 2 }\n')
+    code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", "study")
+    assert code == 0, err
+    made = Path("study/exr/box/reference.exr").resolve()
+    assert "-P jitter=false" in " ".join(_command(made))
+    assert read_exr(made)[1]["sampler_params"] == '{"jitter": false}'
+    _again_elsewhere(capsys, monkeypatch, tmp_path, made)

@@ -20,6 +20,7 @@ def check_config(config: StudyConfig) -> None:
     for spec in config.scenes:
         config.film_pixels[spec.name] = _check_scene(spec)
     _check_samplers(config)
+    _check_reference(config)
     if config.reference.sampler != "independent":
         log.warning("reference sampler %s: its per-sample standard error overestimates the "
                     "noise of a stratified estimate, so the noise floor subtracted from every "
@@ -74,3 +75,21 @@ def _check_samplers(config: StudyConfig) -> None:
                 except McrtError as error:
                     raise ConfigError(f"sampler {sampler.label!r} at {spp} spp: {error}") from None
                 config.effective_spp[(sampler.label, spp)] = int(obj.sample_count())
+
+
+def _check_reference(config: StudyConfig) -> None:
+    """The reference's sampler, with its parameters, renders every scene's passes."""
+    from ..pass_plan import plan_passes
+
+    ref = config.reference
+    planner = logging.getLogger("mcrt.reference")  # (its notes come when it is made)
+    level = planner.level
+    planner.setLevel(logging.ERROR)
+    try:
+        for spec in config.scenes:
+            plan_passes(ref.sampler, ref.spp, config.film_pixels[spec.name], ref.spp_per_pass,
+                        ref.params)
+    except McrtError as error:
+        raise ConfigError(f"reference of scene {spec.name!r}: {error}") from None
+    finally:
+        planner.setLevel(level)

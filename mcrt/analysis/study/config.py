@@ -46,7 +46,7 @@ FILTERS = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
 #: Joins a scene's name and a filter into the scene name of a ``filters`` study's cells.
 FILTER_SEPARATOR = "~"
 _REQUIRED_KEYS = ("spp", "seeds", "samplers", "reference", "scenes")
-_REFERENCE_KEYS = {"spp", "sampler", "seed", "spp_per_pass"}
+_REFERENCE_KEYS = {"spp", "sampler", "seed", "spp_per_pass", "params"}
 _SCENE_KEYS = {"path", "name", "params"}
 _SAMPLER_KEYS = {"name", "label", "params"}
 #: Characters refused in scene names and sampler labels (they name files and CSV cells).
@@ -85,6 +85,7 @@ class ReferenceSpec:
     sampler: str = "independent"
     seed: int = 0
     spp_per_pass: int | None = None
+    params: dict[str, Any] = field(default_factory=dict)  # the sampler's plugin parameters
 
 
 @dataclass(frozen=True)
@@ -135,7 +136,9 @@ class StudyConfig:
             "time_rounds": self.rounds,
             "reference": {"spp": self.reference.spp, "sampler": self.reference.sampler,
                           "seed": self.reference.seed,
-                          "spp_per_pass": self.reference.spp_per_pass},
+                          "spp_per_pass": self.reference.spp_per_pass,
+                          **({"params": self.reference.params} if self.reference.params
+                             else {})},
             "scenes": [{"name": s.name, "path": str(s.path), "params": s.params,
                         "filter": s.rfilter} for s in self.scenes],
             "filters": list(self.filters),
@@ -238,7 +241,7 @@ def parse_config(data: dict[str, Any], base_dir: Path | None = None, name: str =
     draws = _int(data.get("aliasing_draws", STUDY_NULL_DRAWS), "aliasing_draws", 2, 100001)
     plugins = _load_plugins(data.get("plugins"), base_dir)  # before any sampler name is checked
     samplers = _parse_samplers(data["samplers"], base_dir)
-    reference = _parse_reference(data["reference"], max(spp))
+    reference = _parse_reference(data["reference"], max(spp), base_dir)
     filters = _parse_filters(data.get("filters"))
     scenes = _with_filters(_parse_scenes(data["scenes"], base_dir), filters)
     rounds = _int(data.get("time_rounds", max(DEFAULT_TIME_ROUNDS, len(seeds))), "time_rounds",
@@ -336,23 +339,30 @@ def _parse_sampler(item: Any, where: str, base_dir: Path) -> SamplerSpec:
     if "name" not in item:
         raise ConfigError(f"{where}: missing 'name'")
     sampler = _sampler_name(item["name"], f"{where}.name", where)
-    params = _params(item.get("params"), f"{where}.params", as_str=False)
-    from ...core.sampling import RENDER_SETTINGS  # (mitsuba: imported when first needed)
-
-    reserved = sorted(set(params) & set(RENDER_SETTINGS))
-    if reserved:
-        raise ConfigError(f"{where}.params.{reserved[0]}: set by the study (spp and seeds "
-                          f"are the study's own keys), not a sampler parameter")
+    params = _sampler_params(item.get("params"), f"{where}.params", base_dir)
     label = _str(item.get("label", sampler), f"{where}.label")
     if any(c in label for c in _BAD_NAME_CHARS):
         raise ConfigError(f"{where}.label {label!r}: use letters, digits, '.', '-', '_'")
-    for key in FILE_PARAMS:  # a point-set file: relative to the configuration's folder,
-        if isinstance(params.get(key), str) and params[key]:  # as scenes and plugins are
-            params[key] = str((base_dir / params[key]).resolve())
     return SamplerSpec(sampler, label, params)
 
 
-def _parse_reference(ref: Any, max_spp: int) -> ReferenceSpec:
+def _sampler_params(value: Any, where: str, base_dir: Path) -> dict[str, Any]:
+    """A sampler's ``params`` table: a point-set file relative to the configuration's
+    folder (as scenes and plugins are); the spp and seeds are the study's own keys."""
+    from ...core.sampling import RENDER_SETTINGS  # (mitsuba: imported when first needed)
+
+    params = _params(value, where, as_str=False)
+    reserved = sorted(set(params) & set(RENDER_SETTINGS))
+    if reserved:
+        raise ConfigError(f"{where}.{reserved[0]}: set by the study (spp and seeds are the "
+                          f"study's own keys), not a sampler parameter")
+    for key in FILE_PARAMS:
+        if isinstance(params.get(key), str) and params[key]:
+            params[key] = str((base_dir / params[key]).resolve())
+    return params
+
+
+def _parse_reference(ref: Any, max_spp: int, base_dir: Path) -> ReferenceSpec:
     if not isinstance(ref, dict):
         raise ConfigError("reference must be a table ([reference])")
     _check_keys(ref, _REFERENCE_KEYS, "reference")
@@ -364,7 +374,8 @@ def _parse_reference(ref: Any, max_spp: int) -> ReferenceSpec:
                               "reference.sampler"),
         seed=_int(ref.get("seed", 0), "reference.seed", 0, 2**32),
         spp_per_pass=(None if ref.get("spp_per_pass") is None
-                      else _int(ref["spp_per_pass"], "reference.spp_per_pass", 1, 2**20)))
+                      else _int(ref["spp_per_pass"], "reference.spp_per_pass", 1, 2**20)),
+        params=_sampler_params(ref.get("params"), "reference.params", base_dir))
     if reference.spp < MIN_REFERENCE_FACTOR * max_spp:
         raise ConfigError(f"reference.spp ({reference.spp}) must be at least "
                           f"{MIN_REFERENCE_FACTOR} x the largest spp ({max_spp})")

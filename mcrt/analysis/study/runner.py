@@ -300,7 +300,7 @@ class _Run:
 
         ref = get_reference(spec.path, spec.params, spp=config.spp, sampler=config.sampler,
                             seed=config.seed, spp_per_pass=config.spp_per_pass, on_pass=on_pass,
-                            executor=self.executor)
+                            executor=self.executor, sampler_params=config.params)
         mean = np.asarray(ref.mean, dtype=np.float64)
         se = np.asarray(ref.standard_error, dtype=np.float64)
         var = se ** 2

@@ -108,7 +108,7 @@ def _cached_reference(result: StudyResult, spec: SceneSpec) -> Reference | None:
 
     config = result.config.reference
     setup = _setup(ReferenceRequest(spec.path, spec.params, config.spp, config.sampler,
-                                    config.seed, config.spp_per_pass))
+                                    config.seed, config.spp_per_pass, config.params))
     found = load_state(setup.finished, setup.key, setup.plan, setup.shape, complete=True,
                        filtered=setup.filtered)
     if found is None:
