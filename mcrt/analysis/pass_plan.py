@@ -167,6 +167,17 @@ def _greedy_split(counts: _Counts, rest: int) -> tuple[int, ...]:
     return tuple(parts)
 
 
+def _takes_some_count(counts: _Counts) -> bool:
+    """Whether the sampler, with its parameters, is made at any of a few counts."""
+    for n in (1, 4, 16, 64, 256, 1024):
+        try:
+            counts.of(n)
+            return True
+        except SamplerError:
+            continue
+    return False
+
+
 def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = None,
                 params: dict[str, Any] | None = None) -> PassPlan:
     """Split ``spp`` samples per pixel into passes that ``sampler`` (with plugin
@@ -187,6 +198,8 @@ def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = 
         try:
             pass_spp = _largest_accepted(counts, target) or counts.of(target)
         except SamplerError as error:  # e.g. a point set file of other sizes
+            if not _takes_some_count(counts):  # (its parameters, not the count)
+                raise
             raise SamplerError(f"{error} (a reference renders passes of {target} samples per "
                                f"pixel here: --spp-per-pass, or a study's "
                                f"reference.spp_per_pass, sets another size)") from None

@@ -328,6 +328,10 @@ def reference_cases(draw):
                draw(st.sampled_from([([], OK), (["--no-cache"], OK)]))]
     if sampler[0] and sampler[0][1] in set(BUILTIN_SAMPLERS) - {"independent"}:
         options.append(([], ANY))  # rounded sample counts: the pass plan may refuse some spp
+    param = draw(st.one_of(st.just(None), st.sampled_from(PARAMS)))  # (the pattern's)
+    if param is not None:  # valid for the one sampler it names
+        used = sampler[0][1] if sampler[0] else "independent"
+        options.append((["-P", param[0]], OK if param[1] == used else BAD))
     return _finish(draw, "reference", [([scene], SCENES[scene])], options)
 
 

@@ -166,6 +166,9 @@ def test_a_reference_sampler_that_refuses_the_pass_size_says_what_sets_it(capsys
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "4 points" in err and "passes of 64 samples per pixel" in err
     assert "--spp-per-pass" in err
+    code, _, err = run_cli(capsys, "-q", "reference", str(CORNELL), "-D", "res=8",
+                           "-P", "jitter=0.5")  # independent has none: no word of passes
+    assert code == 2 and "jitter" in err and "--spp-per-pass" not in err
 
 
 def test_a_study_s_reference_with_sampler_parameters_renders_again(capsys, monkeypatch,
