@@ -293,7 +293,8 @@ class _Run:
 
         config = self.config.reference
         self.bar.describe(f"{spec.name}: reference")
-        self.bar.note(f"[{spec.name}] reference: {config.sampler}, {config.spp} spp")
+        given = "".join(f" {k}={v}" for k, v in sorted(config.params.items()))
+        self.bar.note(f"[{spec.name}] reference: {config.sampler}{given}, {config.spp} spp")
 
         def on_pass(index: int, passes: int) -> None:
             self.bar.describe(f"{spec.name}: reference pass {index + 1}/{passes}")
