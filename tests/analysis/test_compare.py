@@ -24,6 +24,7 @@ from mcrt.analysis.study import (
     SamplerSpec,
     fit_sampler,
     load_config,
+    study_key,
     summarise_cell,
 )
 from mcrt.analysis.study.fields import (
@@ -554,5 +555,8 @@ def test_a_reference_sampler_takes_parameters_checked_before_rendering(tmp_path,
     sets = str(tmp_path.resolve() / "sets.npy")
     assert config.reference.params == {"filename": sets}
     assert config.as_dict()["reference"]["params"] == {"filename": sets}
+    key = study_key(config)  # a saved study is not resumed against other points
+    np.save(tmp_path / "sets.npy", rng.random((16, 4, 2)).astype(np.float32))
+    assert study_key(load_config(_config(tmp_path, text))) != key
     with pytest.raises(ConfigError, match="reference of scene .*passes of 16 samples per pixel.*reference.spp_per_pass"):
         load_config(_config(tmp_path, text.replace("spp_per_pass = 4", "spp_per_pass = 16")))

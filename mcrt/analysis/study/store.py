@@ -72,9 +72,12 @@ def study_key(config: StudyConfig) -> str:
     for key in ("name", "description", "config_path", "baseline"):
         study.pop(key, None)
     code = {s.label: c for s in config.samplers if (c := sampler_fingerprint(s.name, s.params))}
+    ref = config.reference
+    ref_code = sampler_fingerprint(ref.sampler, ref.params)  # e.g. its point file's content
     return content_key({"kind": "study", "format": STATE_FORMAT, "study": study,
                         "scenes": [scene_digest(s.path, s.params) for s in config.scenes],
-                        **({"sampler_code": code} if code else {})})
+                        **({"sampler_code": code} if code else {}),
+                        **({"reference_code": ref_code} if ref_code else {})})
 
 
 def reference_fingerprint(mean: np.ndarray, standard_error: np.ndarray) -> str:
