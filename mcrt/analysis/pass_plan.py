@@ -2,8 +2,9 @@
 
 Some samplers round their sample count (``jittered``/``uniform_grid``/``stratified``
 to squares, ``orthogonal`` to prime squares, ``ldsampler`` to powers of 4,
-``multijitter`` to products of near-equal factors). :func:`plan_passes` only uses
-counts the sampler accepts *unchanged* (see :mod:`mcrt.analysis.reference`).
+``multijitter`` to products of near-equal factors); a point-set file's sampler
+renders only its sets' sizes and refuses any other count. :func:`plan_passes` only
+uses counts the sampler accepts *unchanged* (see :mod:`mcrt.analysis.reference`).
 """
 
 from __future__ import annotations
@@ -72,18 +73,51 @@ class PassPlan:
         return " + ".join(parts) + " spp"
 
 
+#: How far past a count a sampler that refuses counts is searched for one it takes.
+SCAN_LIMIT = 4096
+
+
 class _Counts:
     """The count ``sampler`` (with plugin ``params``) uses when asked for ``n``,
-    each asked once (raises if it refuses ``n``)."""
+    each asked once (raises if it refuses ``n``).
+
+    Most samplers round a count up. A point-set sampler instead refuses every
+    count but its sets' sizes; once one has refused, ``scan`` is set and the
+    counts it takes are found by scanning, a refusal counting as none."""
 
     def __init__(self, sampler: str, params: dict[str, Any]) -> None:
         self.sampler, self.params = sampler, params
-        self.known: dict[int, int] = {}
+        self.known: dict[int, int | SamplerError] = {}
+        self.scan = False
 
     def of(self, n: int) -> int:
         if n not in self.known:
-            self.known[n] = make_sampler(self.sampler, n, **self.params).sample_count()
-        return self.known[n]
+            try:
+                self.known[n] = make_sampler(self.sampler, n, **self.params).sample_count()
+            except SamplerError as error:
+                self.known[n] = error
+        found = self.known[n]
+        if isinstance(found, SamplerError):
+            raise found
+        return found
+
+    def takes(self, n: int) -> bool:
+        """Whether the sampler renders exactly ``n`` (a refusal: no)."""
+        try:
+            return self.of(n) == n
+        except SamplerError:
+            return False
+
+    def round_up(self, n: int) -> int:
+        """The count the sampler renders when asked for ``n``: its own rounding,
+        or (``scan``) the least count from ``n`` on that it takes."""
+        if not self.scan:
+            return self.of(n)
+        found = next((m for m in range(n, n + SCAN_LIMIT) if self.takes(m)), None)
+        if found is None:
+            raise SamplerError(f"{self.sampler} takes no sample count from {n} to "
+                               f"{n + SCAN_LIMIT - 1}")
+        return found
 
 
 def _largest_accepted(counts: _Counts, n: int) -> int | None:
@@ -92,8 +126,10 @@ def _largest_accepted(counts: _Counts, n: int) -> int | None:
     Samplers round *up* and monotonically (checked for every built-in and mcrt
     sampler up to 1100), so the accepted counts are the values of the rounding
     ``r`` and the answer is ``r(m)`` for the largest ``m`` with ``r(m) <= n``,
-    found by bisection in O(log n) probes.
+    found by bisection in O(log n) probes; a sampler that refuses counts is scanned.
     """
+    if counts.scan:
+        return next((m for m in range(n, 0, -1) if counts.takes(m)), None)
     if counts.of(n) == n:
         return n
     lo, hi = 0, n  # invariant: r(lo) <= n (lo = 0 meaning "none yet"), r(hi) > n
@@ -131,7 +167,7 @@ def _exact_split(counts: _Counts, rest: int, max_parts: int = 8) -> tuple[int, .
     need at most 4 when 1 is accepted)."""
     if rest == 0:
         return ()
-    if counts.of(rest) == rest:
+    if counts.takes(rest):
         return (rest,)
     coins = _accepted_up_to(counts, rest)
     if not coins:
@@ -160,22 +196,11 @@ def _greedy_split(counts: _Counts, rest: int) -> tuple[int, ...]:
     while rest > 0:
         part = _largest_accepted(counts, rest)
         if part is None:
-            parts.append(counts.of(rest))
+            parts.append(counts.round_up(rest))
             break
         parts.append(part)
         rest -= part
     return tuple(parts)
-
-
-def _takes_some_count(counts: _Counts) -> bool:
-    """Whether the sampler, with its parameters, is made at any of a few counts."""
-    for n in (1, 4, 16, 64, 256, 1024):
-        try:
-            counts.of(n)
-            return True
-        except SamplerError:
-            continue
-    return False
 
 
 def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = None,
@@ -197,12 +222,12 @@ def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = 
     with quiet_sampler_warnings():
         try:
             pass_spp = _largest_accepted(counts, target) or counts.of(target)
-        except SamplerError as error:  # e.g. a point set file of other sizes
-            if not _takes_some_count(counts):  # (its parameters, not the count)
-                raise
-            raise SamplerError(f"{error} (a reference renders passes of {target} samples per "
-                               f"pixel here: --spp-per-pass, or a study's "
-                               f"reference.spp_per_pass, sets another size)") from None
+        except SamplerError as refused:  # e.g. a point-set file of other set sizes
+            counts.scan = True
+            try:
+                pass_spp = _largest_accepted(counts, target) or counts.round_up(target)
+            except SamplerError:  # no count at all: its parameters, say, not the count
+                raise refused from None
         full, rest = divmod(spp, pass_spp)
         tail = None
         for drop in range(min(full, 3) + 1):  # fold up to 3 full passes into the tail

@@ -83,6 +83,23 @@ def test_plan_uses_only_counts_the_sampler_keeps(sampler, spp, caplog, cache):
         assert "cannot render exactly" in caplog.text
 
 
+def test_plan_of_a_point_set_file_uses_its_set_sizes(tmp_path):
+    """A point-set sampler refuses every count but its sets' sizes (it does not
+    round): the plan is made of those sizes, exactly where they add up."""
+    rng = np.random.default_rng(4)
+    both = tmp_path / "both.npz"
+    np.savez(both, a=rng.random((16, 16, 2)).astype(np.float32),
+             b=rng.random((16, 4, 2)).astype(np.float32))
+    plan = plan_passes("pointset", 1000, 64, params={"filename": str(both)})
+    assert (plan.pass_spp, plan.spp, sum(plan.tail) % 4) == (16, 1000, 0)
+    assert set(plan.tail) <= {4, 16}
+    only16 = tmp_path / "only16.npy"
+    np.save(only16, rng.random((16, 16, 2)).astype(np.float32))
+    plan = plan_passes("pointset", 1000, 64, spp_per_pass=64, params={"filename": str(only16)})
+    assert plan.pass_spp == 16 and plan.spp == 1008 and set(plan.tail) == {16}
+    assert plan_passes("pointset", 8, 64, params={"filename": str(only16)}).spp == 16
+
+
 def test_plan_folds_full_passes_into_an_exact_tail():
     # orthogonal takes 4, 9, 25, 49, 121, ...: 300 = 6 x 49 + 6 has no exact tail,
     # 5 x 49 + 55 does (55 = 25 + 9 + 9 + 4 + 4 + 4).

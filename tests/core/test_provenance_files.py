@@ -159,16 +159,17 @@ def test_a_reference_of_a_point_set_file_renders_again_and_follows_the_file(
     assert not np.array_equal(_bits(Path("ref_new_sets.exr")), _bits(made))
 
 
-def test_a_reference_sampler_that_refuses_the_pass_size_says_what_sets_it(capsys):
+def test_a_point_set_reference_takes_passes_of_its_sets_size(capsys):
+    """The default pass (64 samples here) is a count a file of 4-point sets refuses:
+    the passes take 4, the largest count it renders; a parameter no count makes
+    good is the error it is."""
     _point_sets(Path("sets.npy"))
+    code, out, err = run_cli(capsys, "reference", str(CORNELL), "-D", "res=8", "--sampler",
+                             "pointset", "-P", "filename=sets.npy", "--spp", "64")
+    assert code == 0 and "passes 16 (16 x 4 spp)" in out, err
     code, _, err = run_cli(capsys, "-q", "reference", str(CORNELL), "-D", "res=8",
-                           "--sampler", "pointset", "-P", "filename=sets.npy", "--spp", "64")
-    assert code == 2 and len(err.strip().splitlines()) == 1
-    assert "4 points" in err and "passes of 64 samples per pixel" in err
-    assert "--spp-per-pass" in err
-    code, _, err = run_cli(capsys, "-q", "reference", str(CORNELL), "-D", "res=8",
-                           "-P", "jitter=0.5")  # independent has none: no word of passes
-    assert code == 2 and "jitter" in err and "--spp-per-pass" not in err
+                           "-P", "jitter=0.5")  # independent has none
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "jitter" in err
 
 
 def test_a_study_s_reference_with_sampler_parameters_renders_again(capsys, monkeypatch,
