@@ -82,13 +82,15 @@ class _Counts:
     each asked once (raises if it refuses ``n``).
 
     Most samplers round a count up. A point-set sampler instead refuses every
-    count but its sets' sizes; once one has refused, ``scan`` is set and the
-    counts it takes are found by scanning, a refusal counting as none."""
+    count but its sets' sizes; once one has refused (``refused``: the first
+    refusal), ``scan`` is set and the counts it takes are found by scanning, a
+    refusal counting as none."""
 
     def __init__(self, sampler: str, params: dict[str, Any]) -> None:
         self.sampler, self.params = sampler, params
         self.known: dict[int, int | SamplerError] = {}
         self.scan = False
+        self.refused: SamplerError | None = None
 
     def of(self, n: int) -> int:
         if n not in self.known:
@@ -96,6 +98,7 @@ class _Counts:
                 self.known[n] = make_sampler(self.sampler, n, **self.params).sample_count()
             except SamplerError as error:
                 self.known[n] = error
+                self.scan, self.refused = True, self.refused or error
         found = self.known[n]
         if isinstance(found, SamplerError):
             raise found
@@ -112,11 +115,14 @@ class _Counts:
         """The count the sampler renders when asked for ``n``: its own rounding,
         or (``scan``) the least count from ``n`` on that it takes."""
         if not self.scan:
-            return self.of(n)
+            try:
+                return self.of(n)
+            except SamplerError:
+                pass  # (now scanning)
         found = next((m for m in range(n, n + SCAN_LIMIT) if self.takes(m)), None)
-        if found is None:
-            raise SamplerError(f"{self.sampler} takes no sample count from {n} to "
-                               f"{n + SCAN_LIMIT - 1}")
+        if found is None:  # none at all is the parameters' fault, say: the first refusal
+            raise self.refused or SamplerError(f"{self.sampler} takes no sample count from "
+                                               f"{n} to {n + SCAN_LIMIT - 1}")
         return found
 
 
@@ -128,8 +134,16 @@ def _largest_accepted(counts: _Counts, n: int) -> int | None:
     ``r`` and the answer is ``r(m)`` for the largest ``m`` with ``r(m) <= n``,
     found by bisection in O(log n) probes; a sampler that refuses counts is scanned.
     """
-    if counts.scan:
-        return next((m for m in range(n, 0, -1) if counts.takes(m)), None)
+    if not counts.scan:
+        try:
+            return _bisect(counts, n)
+        except SamplerError:
+            pass  # (now scanning)
+    return next((m for m in range(n, 0, -1) if counts.takes(m)), None)
+
+
+def _bisect(counts: _Counts, n: int) -> int | None:
+    """:func:`_largest_accepted` of a sampler that rounds counts up."""
     if counts.of(n) == n:
         return n
     lo, hi = 0, n  # invariant: r(lo) <= n (lo = 0 meaning "none yet"), r(hi) > n
@@ -220,14 +234,7 @@ def plan_passes(sampler: str, spp: int, pixels: int, spp_per_pass: int | None = 
     target = min(target, spp)
     counts = _Counts(sampler, dict(params or {}))
     with quiet_sampler_warnings():
-        try:
-            pass_spp = _largest_accepted(counts, target) or counts.of(target)
-        except SamplerError as refused:  # e.g. a point-set file of other set sizes
-            counts.scan = True
-            try:
-                pass_spp = _largest_accepted(counts, target) or counts.round_up(target)
-            except SamplerError:  # no count at all: its parameters, say, not the count
-                raise refused from None
+        pass_spp = _largest_accepted(counts, target) or counts.round_up(target)
         full, rest = divmod(spp, pass_spp)
         tail = None
         for drop in range(min(full, 3) + 1):  # fold up to 3 full passes into the tail

@@ -31,7 +31,7 @@ from mcrt.cli import main
 from mcrt.core.executor import InProcess
 from mcrt.core.sampling import make_sampler
 from mcrt.core.stats import PixelStats
-from mcrt.errors import McrtError
+from mcrt.errors import McrtError, SamplerError
 from mcrt.io import read_exr, write_exr
 from mcrt.render.scene import load_scene
 from mcrt.samplers import ALL_SAMPLERS
@@ -98,6 +98,13 @@ def test_plan_of_a_point_set_file_uses_its_set_sizes(tmp_path):
     plan = plan_passes("pointset", 1000, 64, spp_per_pass=64, params={"filename": str(only16)})
     assert plan.pass_spp == 16 and plan.spp == 1008 and set(plan.tail) == {16}
     assert plan_passes("pointset", 8, 64, params={"filename": str(only16)}).spp == 16
+    # The first pass's count taken, a refusal comes later (the tail's 232 spp).
+    only256 = tmp_path / "only256.npy"
+    np.save(only256, rng.random((16, 256, 2)).astype(np.float32))
+    plan = plan_passes("pointset", 1000, 64, params={"filename": str(only256)})
+    assert (plan.pass_spp, plan.spp, plan.passes) == (256, 1024, 4)
+    with pytest.raises(SamplerError, match="jitter"):  # no count makes it good
+        plan_passes("independent", 64, 64, params={"jitter": 0.5})
 
 
 def test_plan_folds_full_passes_into_an_exact_tail():
