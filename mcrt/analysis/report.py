@@ -67,7 +67,6 @@ from .report_tables import (
 )
 from .study import RESOLVED_FACTOR, StudyResult, cell_keys
 from .study.conclude import cpus_line
-from .study.config import ReferenceSpec
 from .study.fields import CSV_COLUMNS, DEFINITIONS
 from .study.figures import error_figure, images_figure, summary_figure
 from .viewer import HELP, viewer_assets, viewer_sections
@@ -238,7 +237,7 @@ def _html_intro(result: StudyResult, files: dict[str, Path]) -> list[str]:
     parts.append(
         f"<p class='note'>{len(config.scenes)} scene(s) &times; {len(config.samplers)} "
         f"sampler(s) &times; spp {', '.join(map(str, config.spp))} &times; "
-        f"{len(config.seeds)} seeds; reference: {html.escape(_sampler_text(config.reference))}, "
+        f"{len(config.seeds)} seeds; reference: {html.escape(config.reference.sampler_text())}, "
         f"{config.reference.spp} spp. Ran {result.seconds:.0f} s on "
         f"{html.escape(str(env['platform']))}, "
         f"{env['cpus']} CPUs, Mitsuba {env['mitsuba']}, Dr.Jit {env['drjit']}, "
@@ -339,12 +338,6 @@ def _html_definitions() -> list[str]:
                  "<code>error_vs_spp.png</code>, <code>error_vs_time.png</code>.</p>")
     parts.append(f"<script>{viewer_assets()[1]}</script></body></html>\n")
     return parts
-
-
-def _sampler_text(reference: ReferenceSpec) -> str:
-    """``pointset (filename=/x/sets.npy)``: the reference's sampler and parameters."""
-    given = ", ".join(f"{k}={v}" for k, v in sorted(reference.params.items()))
-    return f"{reference.sampler} ({given})" if given else reference.sampler
 
 
 def report_files(directory: str | os.PathLike, scenes: list[str]) -> dict[str, Path]:

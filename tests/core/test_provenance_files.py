@@ -184,6 +184,7 @@ def test_a_study_s_reference_with_sampler_parameters_renders_again(capsys, monke
                       'params = { res = 8, max_depth = 2 }\n')
     code, _, err = run_cli(capsys, "-q", "compare", str(config), "-o", "study")
     assert code == 0, err
+    assert "reference: stratified (jitter=False), 16 spp" in Path("study/report.html").read_text()
     made = Path("study/exr/box/reference.exr").resolve()
     assert "-P jitter=false" in " ".join(_command(made))
     assert read_exr(made)[1]["sampler_params"] == '{"jitter": false}'

@@ -87,6 +87,11 @@ class ReferenceSpec:
     spp_per_pass: int | None = None
     params: dict[str, Any] = field(default_factory=dict)  # the sampler's plugin parameters
 
+    def sampler_text(self) -> str:
+        """``pointset (filename=/x/sets.npy)``: the sampler and its parameters."""
+        given = ", ".join(f"{k}={v}" for k, v in sorted(self.params.items()))
+        return f"{self.sampler} ({given})" if given else self.sampler
+
 
 @dataclass(frozen=True)
 class StudyConfig:

@@ -293,8 +293,7 @@ class _Run:
 
         config = self.config.reference
         self.bar.describe(f"{spec.name}: reference")
-        given = "".join(f" {k}={v}" for k, v in sorted(config.params.items()))
-        self.bar.note(f"[{spec.name}] reference: {config.sampler}{given}, {config.spp} spp")
+        self.bar.note(f"[{spec.name}] reference: {config.sampler_text()}, {config.spp} spp")
 
         def on_pass(index: int, passes: int) -> None:
             self.bar.describe(f"{spec.name}: reference pass {index + 1}/{passes}")
